@@ -1,0 +1,15 @@
+"""mvbb_ros: minimum-volume bounding box decomposition and grasp hypotheses.
+
+The geometry is plain numpy/scipy and importable without ROS::
+
+    from mvbb_ros import Box, minimum_bounding_box, decompose, grasp_hypotheses
+
+Huebner, Ruthotto and Kragic, "Minimum Volume Bounding Box Decomposition for Shape Approximation
+in Robot Grasping", ICRA 2008.
+"""
+
+from mvbb_ros.box import Box
+from mvbb_ros.mvbb import minimum_bounding_box
+
+__all__ = ['Box', 'minimum_bounding_box']
+__version__ = '0.1.0'

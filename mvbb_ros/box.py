@@ -1,0 +1,193 @@
+"""Oriented box: an immutable value on numpy arrays (no ROS import).
+
+A box is a centre, a rotation whose columns are the unit box axes (right-handed, det +1) and the
+full edge lengths along those axes. Units are those of the points it was made from (metres for
+sensor data).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import itertools
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+
+#: Face order used by :meth:`Box.face_centers`, :meth:`Box.face_normals` and the grasp module:
+#: +a, -a, +b, -b, +c, -c, where a, b, c are the box axes (rotation columns 0, 1, 2).
+FACE_NAMES: tuple[str, ...] = ('+x', '-x', '+y', '-y', '+z', '-z')
+
+_CORNER_SIGNS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
+#: Corner index pairs of the 12 box edges, for wireframes (corners differ in one sign).
+EDGES: tuple[tuple[int, int], ...] = tuple(
+    (i, j)
+    for i in range(8)
+    for j in range(i + 1, 8)
+    if np.count_nonzero(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1
+)
+
+
+def _readonly(array: ArrayLike, shape: tuple[int, ...], name: str) -> FloatArray:
+    out = np.array(array, dtype=np.float64, copy=True)
+    if out.shape != shape:
+        raise ValueError(f'Box {name} must have shape {shape}, got {out.shape}')
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f'Box {name} must be finite, got {out!r}')
+    out.setflags(write=False)
+    return out
+
+
+def right_handed(rotation: ArrayLike) -> FloatArray:
+    """Return `rotation` with its third column flipped when its determinant is negative.
+
+    Flipping an axis leaves the box itself unchanged (a box is symmetric about each axis).
+    """
+    out = np.array(rotation, dtype=np.float64, copy=True)
+    if np.linalg.det(out) < 0.0:
+        out[:, 2] = -out[:, 2]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Box:
+    """An oriented box.
+
+    Attributes:
+        center: (3,) centre in the world frame.
+        rotation: (3, 3) rotation; column k is the unit direction of box axis k in the world frame.
+        extents: (3,) full edge lengths along the three axes (>= 0).
+
+    """
+
+    center: FloatArray
+    rotation: FloatArray
+    extents: FloatArray
+
+    def __post_init__(self) -> None:
+        center = _readonly(self.center, (3,), 'center')
+        rotation = _readonly(self.rotation, (3, 3), 'rotation')
+        extents = _readonly(self.extents, (3,), 'extents')
+        if np.any(extents < 0.0):
+            raise ValueError(f'Box extents must be >= 0, got {extents}')
+        if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6):
+            raise ValueError('Box rotation must be orthonormal')
+        if np.linalg.det(rotation) < 0.0:
+            raise ValueError('Box rotation must be right-handed (det +1)')
+        object.__setattr__(self, 'center', center)
+        object.__setattr__(self, 'rotation', rotation)
+        object.__setattr__(self, 'extents', extents)
+
+    # Construction -------------------------------------------------------------------------------
+
+    @classmethod
+    def enclosing(cls, points: ArrayLike, rotation: ArrayLike | None = None) -> Box:
+        """Smallest box with the given axes that encloses `points` ((N, 3), N >= 1).
+
+        With no rotation the box is axis-aligned. A left-handed rotation is made right-handed.
+        Coordinates are taken relative to the first point, so clouds far from the origin keep
+        their precision.
+        """
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(pts) == 0:
+            raise ValueError('Box.enclosing needs at least one point')
+        rot = np.eye(3) if rotation is None else right_handed(rotation)
+        origin = pts[0]
+        local = (pts - origin) @ rot
+        low = local.min(axis=0)
+        high = local.max(axis=0)
+        center = origin + rot @ ((low + high) / 2.0)
+        return cls(center=center, rotation=rot, extents=high - low)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Box:
+        """Inverse of :meth:`to_dict` (centre, quaternion x y z w, extents)."""
+        rotation = Rotation.from_quat(np.asarray(data['quaternion'], dtype=float)).as_matrix()
+        return cls(center=data['center'], rotation=rotation, extents=data['extents'])
+
+    # Derived quantities --------------------------------------------------------------------------
+
+    @property
+    def volume(self) -> float:
+        """Volume (product of the extents), in cubed units of the points."""
+        return float(np.prod(self.extents))
+
+    @property
+    def half_extents(self) -> FloatArray:
+        """Half edge lengths (3,)."""
+        return self.extents / 2.0
+
+    @property
+    def quaternion(self) -> FloatArray:
+        """Orientation as a unit quaternion (x, y, z, w) with w >= 0, as ROS messages use."""
+        quat = Rotation.from_matrix(self.rotation).as_quat()
+        return -quat if quat[3] < 0.0 else quat
+
+    def corners(self) -> FloatArray:
+        """The eight corners (8, 3); corner i has the signs of ``itertools.product((-1, 1), ...)``.
+
+        :data:`EDGES` lists which corner pairs form the twelve edges.
+        """
+        return self.to_world(_CORNER_SIGNS * self.half_extents)
+
+    def face_normals(self) -> FloatArray:
+        """Outward unit normals (6, 3) in :data:`FACE_NAMES` order (+a, -a, +b, -b, +c, -c)."""
+        axes = self.rotation.T
+        return np.stack([axes[0], -axes[0], axes[1], -axes[1], axes[2], -axes[2]])
+
+    def face_centers(self) -> FloatArray:
+        """Face centres (6, 3) in :data:`FACE_NAMES` order."""
+        offsets = np.repeat(self.half_extents, 2)
+        return self.center + self.face_normals() * offsets[:, None]
+
+    # Frames --------------------------------------------------------------------------------------
+
+    def to_local(self, points: ArrayLike) -> FloatArray:
+        """World points (N, 3) to box-frame coordinates (origin at the centre, box axes)."""
+        return (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation
+
+    def to_world(self, local: ArrayLike) -> FloatArray:
+        """Box-frame coordinates (N, 3) to world points."""
+        return np.asarray(local, dtype=np.float64) @ self.rotation.T + self.center
+
+    def transformed(self, rotation: ArrayLike, translation: ArrayLike) -> Box:
+        """This box moved by the rigid motion x -> rotation @ x + translation."""
+        rot = np.asarray(rotation, dtype=np.float64)
+        return Box(
+            center=rot @ self.center + np.asarray(translation, dtype=np.float64),
+            rotation=right_handed(rot @ self.rotation),
+            extents=self.extents,
+        )
+
+    def default_tolerance(self) -> float:
+        """Containment tolerance: 1e-9 of the box size plus the rounding of its centre."""
+        scale = float(np.max(self.extents))
+        return 1e-9 * scale + 8.0 * np.finfo(float).eps * float(np.max(np.abs(self.center)))
+
+    def contains(self, points: ArrayLike, tol: float | None = None) -> NDArray[np.bool_]:
+        """Per point (N,), whether it lies inside the box grown by `tol` on every side.
+
+        `tol` is in the points' units; None uses :meth:`default_tolerance`.
+        """
+        margin = self.default_tolerance() if tol is None else float(tol)
+        local = self.to_local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        return np.all(np.abs(local) <= self.half_extents + margin, axis=1)
+
+    # Serialisation -------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, list[float] | float]:
+        """JSON-ready dict: centre, quaternion (x, y, z, w), extents and volume."""
+        return {
+            'center': [float(v) for v in self.center],
+            'quaternion': [float(v) for v in self.quaternion],
+            'extents': [float(v) for v in self.extents],
+            'volume': self.volume,
+        }
+
+    def __repr__(self) -> str:
+        center = np.array2string(self.center, precision=4)
+        extents = np.array2string(self.extents, precision=4)
+        return f'Box(center={center}, extents={extents}, volume={self.volume:.6g})'

@@ -1,0 +1,26 @@
+"""Shared fixtures: where the shared real data lives, and how to skip clearly without it."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+#: The shared real data (models, scans, bags); override with MVBB_SHARED_DATA.
+SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO_ROOT.parent / 'shared' / 'data'))
+
+
+def require_shared_data(*relative: str) -> Path:
+    """Return SHARED_DATA / relative, or skip the test with a message saying what is missing."""
+    path = SHARED_DATA.joinpath(*relative)
+    if not path.exists():
+        pytest.skip(f'shared data not found: {path} (set MVBB_SHARED_DATA to its folder)')
+    return path
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    """The shared data folder; skips the test when it is absent."""
+    return require_shared_data()
