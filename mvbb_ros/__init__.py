@@ -1,4 +1,5 @@
-"""mvbb_ros: minimum-volume bounding box decomposition and grasp hypotheses.
+"""
+mvbb_ros: minimum-volume bounding box decomposition and grasp hypotheses.
 
 The geometry is plain numpy/scipy and importable without ROS::
 

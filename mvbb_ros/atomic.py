@@ -12,7 +12,8 @@ from typing import IO
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success it is renamed onto `path`.
+    """
+    Yield a temporary path beside `path`; on success it is renamed onto `path`.
 
     Use it for writers that want a file name (Open3D, matplotlib, rosbags). If the block raises,
     the temporary file (or directory) is removed and `path` is untouched.

@@ -1,4 +1,5 @@
-"""Oriented box: an immutable value on numpy arrays (no ROS import).
+"""
+Oriented box: an immutable value on numpy arrays (no ROS import).
 
 A box is a centre, a rotation whose columns are the unit box axes (right-handed, det +1) and the
 full edge lengths along those axes. Units are those of the points it was made from (metres for
@@ -42,7 +43,8 @@ def _readonly(array: ArrayLike, shape: tuple[int, ...], name: str) -> FloatArray
 
 
 def right_handed(rotation: ArrayLike) -> FloatArray:
-    """Return `rotation` with its third column flipped when its determinant is negative.
+    """
+    Return `rotation` with its third column flipped when its determinant is negative.
 
     Flipping an axis leaves the box itself unchanged (a box is symmetric about each axis).
     """
@@ -54,12 +56,12 @@ def right_handed(rotation: ArrayLike) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class Box:
-    """An oriented box.
+    """
+    An oriented box.
 
-    Attributes:
-        center: (3,) centre in the world frame.
-        rotation: (3, 3) rotation; column k is the unit direction of box axis k in the world frame.
-        extents: (3,) full edge lengths along the three axes (>= 0).
+    :ivar center: (3,) centre in the world frame.
+    :ivar rotation: (3, 3) rotation; column k is the unit direction of box axis k (world frame).
+    :ivar extents: (3,) full edge lengths along the three axes (>= 0).
 
     """
 
@@ -85,7 +87,8 @@ class Box:
 
     @classmethod
     def enclosing(cls, points: ArrayLike, rotation: ArrayLike | None = None) -> Box:
-        """Smallest box with the given axes that encloses `points` ((N, 3), N >= 1).
+        """
+        Return the smallest box with the given axes that encloses `points` ((N, 3), N >= 1).
 
         With no rotation the box is axis-aligned. A left-handed rotation is made right-handed.
         Coordinates are taken relative to the first point, so clouds far from the origin keep
@@ -104,7 +107,7 @@ class Box:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Box:
-        """Inverse of :meth:`to_dict` (centre, quaternion x y z w, extents)."""
+        """Build a box from :meth:`to_dict` output (centre, quaternion x y z w, extents)."""
         rotation = Rotation.from_quat(np.asarray(data['quaternion'], dtype=float)).as_matrix()
         return cls(center=data['center'], rotation=rotation, extents=data['extents'])
 
@@ -122,39 +125,40 @@ class Box:
 
     @property
     def quaternion(self) -> FloatArray:
-        """Orientation as a unit quaternion (x, y, z, w) with w >= 0, as ROS messages use."""
+        """Orientation as a unit quaternion ordered x, y, z, w with w >= 0, as in ROS messages."""
         quat = Rotation.from_matrix(self.rotation).as_quat()
         return -quat if quat[3] < 0.0 else quat
 
     def corners(self) -> FloatArray:
-        """The eight corners (8, 3); corner i has the signs of ``itertools.product((-1, 1), ...)``.
+        """
+        Return the eight corners, shape (8, 3), signed as ``itertools.product((-1, 1), repeat=3)``.
 
         :data:`EDGES` lists which corner pairs form the twelve edges.
         """
         return self.to_world(_CORNER_SIGNS * self.half_extents)
 
     def face_normals(self) -> FloatArray:
-        """Outward unit normals (6, 3) in :data:`FACE_NAMES` order (+a, -a, +b, -b, +c, -c)."""
+        """Return the outward unit normals, shape (6, 3), in :data:`FACE_NAMES` order."""
         axes = self.rotation.T
         return np.stack([axes[0], -axes[0], axes[1], -axes[1], axes[2], -axes[2]])
 
     def face_centers(self) -> FloatArray:
-        """Face centres (6, 3) in :data:`FACE_NAMES` order."""
+        """Return the face centres, shape (6, 3), in :data:`FACE_NAMES` order (+a, -a, +b, ...)."""
         offsets = np.repeat(self.half_extents, 2)
         return self.center + self.face_normals() * offsets[:, None]
 
     # Frames --------------------------------------------------------------------------------------
 
     def to_local(self, points: ArrayLike) -> FloatArray:
-        """World points (N, 3) to box-frame coordinates (origin at the centre, box axes)."""
+        """Map world points (N, 3) to box-frame coordinates (origin at the centre, box axes)."""
         return (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation
 
     def to_world(self, local: ArrayLike) -> FloatArray:
-        """Box-frame coordinates (N, 3) to world points."""
+        """Map box-frame coordinates (N, 3) to world points."""
         return np.asarray(local, dtype=np.float64) @ self.rotation.T + self.center
 
     def transformed(self, rotation: ArrayLike, translation: ArrayLike) -> Box:
-        """This box moved by the rigid motion x -> rotation @ x + translation."""
+        """Return this box moved by the rigid motion x -> rotation @ x + translation."""
         rot = np.asarray(rotation, dtype=np.float64)
         return Box(
             center=rot @ self.center + np.asarray(translation, dtype=np.float64),
@@ -163,12 +167,13 @@ class Box:
         )
 
     def default_tolerance(self) -> float:
-        """Containment tolerance: 1e-9 of the box size plus the rounding of its centre."""
+        """Return the containment tolerance: 1e-9 of the box size plus the centre's rounding."""
         scale = float(np.max(self.extents))
         return 1e-9 * scale + 8.0 * np.finfo(float).eps * float(np.max(np.abs(self.center)))
 
     def contains(self, points: ArrayLike, tol: float | None = None) -> NDArray[np.bool_]:
-        """Per point (N,), whether it lies inside the box grown by `tol` on every side.
+        """
+        Tell, per point (N,), whether it lies inside the box grown by `tol` on every side.
 
         `tol` is in the points' units; None uses :meth:`default_tolerance`.
         """
@@ -179,7 +184,7 @@ class Box:
     # Serialisation -------------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, list[float] | float]:
-        """JSON-ready dict: centre, quaternion (x, y, z, w), extents and volume."""
+        """Return a JSON-ready dict: centre, quaternion x y z w, extents and volume."""
         return {
             'center': [float(v) for v in self.center],
             'quaternion': [float(v) for v in self.quaternion],

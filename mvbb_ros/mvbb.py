@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
+from mvbb_ros.box import Box
 import numpy as np
 from numpy.typing import ArrayLike
-
-from mvbb_ros.box import Box
 
 
 def minimum_bounding_box(points: ArrayLike, *, seed: int = 0) -> Box:

@@ -22,5 +22,5 @@ def require_shared_data(*relative: str) -> Path:
 
 @pytest.fixture
 def shared_data() -> Path:
-    """The shared data folder; skips the test when it is absent."""
+    """Return the shared data folder; skip the test when it is absent."""
     return require_shared_data()
