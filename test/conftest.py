@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import random
 
 import pytest
+
+# Every test run talks on its own DDS domain, on this machine only, so parallel runs and other
+# ROS graphs never see each other. Set before any rclpy context exists (and inherited by the
+# subprocesses that tests start).
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 #: The shared real data (models, scans, bags); override with MVBB_SHARED_DATA.

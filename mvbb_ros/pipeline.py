@@ -1,0 +1,134 @@
+"""
+The per-cloud pipeline: decode, filter, decompose, grasp (DESIGN.md section 2).
+
+One function, :func:`process_cloud`, serves the node and `mvbb bag process`, so what a bag
+produces offline is what the node publishes live. No ROS import: the cloud message is read
+duck-typed (rclpy and rosbags messages both work).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+from typing import Any
+
+from mvbb_ros.box import Box
+from mvbb_ros.decomposition import Decomposition, decompose
+from mvbb_ros.filtering import FilterCounts, filter_points
+from mvbb_ros.grasps import Grasp, grasp_hypotheses
+from mvbb_ros.pointcloud2 import CloudFormatError, read_xyz
+from mvbb_ros.settings import PipelineSettings
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+@dataclass
+class PipelineResult:
+    """
+    What one cloud produced.
+
+    `warning` says why the result is empty when the input could not be used (the node logs it,
+    throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
+    """
+
+    counts: FilterCounts
+    decomposition: Decomposition | None = None
+    grasps: list[Grasp] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    warning: str | None = None
+
+    @property
+    def leaves(self) -> list[Box]:
+        """Return the leaf boxes (empty when there is no decomposition)."""
+        return [] if self.decomposition is None else list(self.decomposition.leaves)
+
+    @property
+    def total_ms(self) -> float:
+        """Return the total processing time in milliseconds."""
+        return float(sum(self.timings_ms.values()))
+
+
+def _empty_counts(count: int = 0) -> FilterCounts:
+    return FilterCounts(count, count, count, count)
+
+
+def process_points(
+    points: ArrayLike, settings: PipelineSettings, timings_ms: dict[str, float] | None = None
+) -> PipelineResult:
+    """
+    Filter, decompose and grasp finite `points` (N, 3) in metres.
+
+    :param points: finite points of one segmented object, in the sensor frame.
+    :param settings: the pipeline settings.
+    :param timings_ms: step timings measured before this call (decoding), kept in the result.
+    :return: the result; empty with a `warning` when too few points remain.
+    """
+    timings = dict(timings_ms or {})
+    start = time.perf_counter()
+    filtered, counts = filter_points(
+        points,
+        voxel_size=settings.voxel_size,
+        outlier_neighbors=settings.outlier_neighbors,
+        outlier_std_ratio=settings.outlier_std_ratio,
+        crop_min=settings.crop_min,
+        crop_max=settings.crop_max,
+    )
+    timings['filter'] = (time.perf_counter() - start) * 1e3
+    if len(filtered) < settings.min_points:
+        warning = (
+            f'only {len(filtered)} of {counts.input} points left after filtering, fewer than '
+            f'min_points = {settings.min_points}'
+        )
+        return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
+
+    start = time.perf_counter()
+    decomposition = decompose(
+        filtered,
+        gain_threshold=settings.gain_threshold,
+        min_points=settings.min_points,
+        split_measure=settings.split_measure,
+        rescore_cuts=settings.rescore_cuts,
+        max_boxes=settings.max_boxes,
+        seed=settings.seed,
+    )
+    timings['decompose'] = (time.perf_counter() - start) * 1e3
+
+    start = time.perf_counter()
+    grasps = grasp_hypotheses(
+        decomposition,
+        gripper_max_width=settings.gripper_max_width,
+        standoff=settings.standoff,
+        approach_axis=settings.approach_axis,
+        strategy=settings.grasp_strategy,
+        up=settings.up_direction or None,
+    )
+    if settings.max_grasps > 0:
+        grasps = grasps[: settings.max_grasps]
+    timings['grasps'] = (time.perf_counter() - start) * 1e3
+    return PipelineResult(
+        counts=counts, decomposition=decomposition, grasps=grasps, timings_ms=timings
+    )
+
+
+def decode_cloud(cloud: Any) -> NDArray[np.float64]:
+    """Decode a PointCloud2 (rclpy or rosbags message) to finite (N, 3) points."""
+    return read_xyz(cloud)
+
+
+def process_cloud(cloud: Any, settings: PipelineSettings) -> PipelineResult:
+    """
+    Run the whole pipeline on one `sensor_msgs/PointCloud2` (never modified).
+
+    A malformed cloud gives an empty result whose `warning` says what is wrong.
+    """
+    start = time.perf_counter()
+    try:
+        points = decode_cloud(cloud)
+    except CloudFormatError as error:
+        return PipelineResult(counts=_empty_counts(), warning=f'malformed cloud: {error}')
+    timings = {'decode': (time.perf_counter() - start) * 1e3}
+    if len(points) == 0:
+        return PipelineResult(
+            counts=_empty_counts(), timings_ms=timings, warning='cloud has no finite points'
+        )
+    return process_points(points, settings, timings)

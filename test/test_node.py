@@ -1,0 +1,202 @@
+"""End-to-end tests of the decomposer node through a real rclpy graph (localhost, own domain)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+from builtin_interfaces.msg import Time
+from mvbb_ros.pointcloud2 import create_cloud_xyz
+import numpy as np
+import pytest
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
+from ros_graph import Graph, l_shape_points
+from scipy.spatial.transform import Rotation
+from visualization_msgs.msg import Marker
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def graph():
+    graph = Graph()
+    yield graph
+    graph.close()
+
+
+def _cloud(points: np.ndarray, frame_id: str = 'camera_optical_frame', sec: int = 42):
+    cloud = create_cloud_xyz(points, frame_id=frame_id)
+    cloud.header.stamp = Time(sec=sec, nanosec=7)
+    return cloud
+
+
+def _leaf_markers(array, marker_type: int) -> list[Marker]:
+    return [m for m in array.markers if m.type == marker_type and m.action == Marker.ADD]
+
+
+def test_cloud_comes_back_as_markers_and_poses(graph):
+    cloud = _cloud(l_shape_points())
+    data_before = bytes(cloud.data)
+    grasps = graph.publish_until_answered(graph.publisher(), cloud)
+    assert graph.spin_until(lambda: graph.boxes)
+    boxes = graph.boxes[-1]
+
+    assert boxes.markers[0].action == Marker.DELETEALL
+    cubes = _leaf_markers(boxes, Marker.CUBE)
+    edges = _leaf_markers(boxes, Marker.LINE_LIST)
+    labels = _leaf_markers(boxes, Marker.TEXT_VIEW_FACING)
+    assert len(cubes) == len(edges) == len(labels) == 2, 'the L shape is two boxes'
+    assert [m.id for m in cubes] == [0, 1]
+    assert {m.ns for m in cubes} == {'boxes'} and {m.ns for m in edges} == {'edges'}
+    assert all(len(m.points) == 24 for m in edges)
+    for message in (*boxes.markers, grasps):
+        assert message.header.frame_id == 'camera_optical_frame'
+        assert (message.header.stamp.sec, message.header.stamp.nanosec) == (42, 7)
+    # The two boxes hold the points: every point lies in one of the CUBEs (within 1 mm).
+    points = l_shape_points()
+    inside = np.zeros(len(points), dtype=bool)
+    for cube in cubes:
+        q = cube.pose.orientation
+        rotation = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+        center = np.array([cube.pose.position.x, cube.pose.position.y, cube.pose.position.z])
+        half = np.array([cube.scale.x, cube.scale.y, cube.scale.z]) / 2
+        inside |= np.all(np.abs((points - center) @ rotation) <= half + 1e-3, axis=1)
+    assert inside.mean() > 0.99
+    assert len(grasps.poses) > 0
+    for pose in grasps.poses:
+        q = pose.orientation
+        assert abs(np.linalg.norm([q.x, q.y, q.z, q.w]) - 1.0) < 1e-6
+    assert bytes(cloud.data) == data_before, 'the input message must never be modified'
+
+
+def test_best_effort_and_reliable_publishers_are_both_heard(graph):
+    for reliability in (ReliabilityPolicy.BEST_EFFORT, ReliabilityPolicy.RELIABLE):
+        grasps = graph.publish_until_answered(
+            graph.publisher(reliability), _cloud(l_shape_points())
+        )
+        assert grasps.header.frame_id == 'camera_optical_frame'
+
+
+def _set_parameter(graph: Graph, name: str, value) -> tuple[bool, str]:
+    """Call the node's real SetParameters service from the probe node."""
+    client = graph.probe.create_client(SetParameters, '/decomposer/set_parameters')
+    assert graph.spin_until(lambda: client.service_is_ready(), timeout_s=10.0)
+    request = SetParameters.Request(
+        parameters=[
+            ParameterMsg(name=name, value=Parameter(name, value=value).get_parameter_value())
+        ]
+    )
+    future = client.call_async(request)
+    assert graph.spin_until(future.done, timeout_s=10.0)
+    result = future.result().results[0]
+    graph.probe.destroy_client(client)
+    return result.successful, result.reason
+
+
+def test_runtime_parameter_change_is_validated_and_reprocesses(graph):
+    graph.publish_until_answered(graph.publisher(), _cloud(l_shape_points()))
+    assert graph.spin_until(lambda: graph.boxes)
+    assert len(_leaf_markers(graph.boxes[-1], Marker.CUBE)) == 2
+
+    ok, reason = _set_parameter(graph, 'gain_threshold', 1.5)
+    assert not ok and 'gain_threshold' in reason
+    ok, reason = _set_parameter(graph, 'gain_threshold', float('nan'))
+    assert not ok and 'gain_threshold' in reason
+    ok, reason = _set_parameter(graph, 'split_measure', 'diagonal')
+    assert not ok and 'area' in reason
+    ok, reason = _set_parameter(graph, 'min_points', 'many')
+    assert not ok
+    assert graph.node.settings.gain_threshold == pytest.approx(0.94), 'refused: old value kept'
+
+    seen = len(graph.boxes)
+    ok, reason = _set_parameter(graph, 'gain_threshold', 0.2)
+    assert ok, reason
+    # No new cloud is published: the node processes the last one again at once.
+    assert graph.spin_until(lambda: len(graph.boxes) > seen, timeout_s=10.0)
+    assert len(_leaf_markers(graph.boxes[-1], Marker.CUBE)) == 1, 'lower t, fewer boxes'
+
+
+def test_bad_clouds_give_cleared_outputs_and_the_node_keeps_running(graph):
+    publisher = graph.publisher()
+    empty = _cloud(np.zeros((0, 3)))
+    grasps = graph.publish_until_answered(publisher, empty)
+    assert graph.spin_until(lambda: graph.boxes)
+    assert len(grasps.poses) == 0
+    assert [m.action for m in graph.boxes[-1].markers] == [Marker.DELETEALL]
+
+    no_xyz = _cloud(l_shape_points())
+    no_xyz.fields = [field for field in no_xyz.fields if field.name != 'z']
+    grasps = graph.publish_until_answered(publisher, no_xyz)
+    assert len(grasps.poses) == 0
+    assert graph.node.settings is not None
+
+    grasps = graph.publish_until_answered(publisher, _cloud(l_shape_points()))
+    assert len(grasps.poses) > 0, 'a good cloud after bad ones is processed normally'
+
+
+def test_read_only_reliable_input_cannot_change_at_runtime(graph):
+    ok, reason = _set_parameter(graph, 'reliable_input', True)
+    assert not ok and 'read-only' in reason.lower()
+
+
+def test_reliable_input_parameter_makes_the_subscription_reliable():
+    graph = Graph(parameter_overrides=[Parameter('reliable_input', value=True)])
+    try:
+        grasps = graph.publish_until_answered(graph.publisher(), _cloud(l_shape_points()))
+        assert len(grasps.poses) > 0
+        endpoint = graph.node.get_subscriptions_info_by_topic('/cloud_in')[0]
+        assert endpoint.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    finally:
+        graph.close()
+
+
+def _console_script(name: str) -> Path:
+    path = Path(sys.executable).parent / name
+    if not path.exists():
+        pytest.skip(f'{path} is not installed (run make test, which installs the package)')
+    return path
+
+
+def test_installed_decomposer_exits_zero_on_sigint():
+    process = subprocess.Popen(
+        [str(_console_script('decomposer'))],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED='1'),
+    )
+    try:
+        deadline = time.monotonic() + 60.0
+        started = False
+        while time.monotonic() < deadline and not started:
+            line = process.stdout.readline()
+            started = 'listening on' in line
+            if not line and process.poll() is not None:
+                break
+        assert started, 'the node did not start'
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+
+
+def test_bad_parameter_file_fails_loudly(tmp_path):
+    params = tmp_path / 'bad.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    gain_threshold: 7.5\n')
+    result = subprocess.run(
+        [str(_console_script('decomposer')), '--ros-args', '--params-file', str(params)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode != 0
+    assert 'gain_threshold' in result.stderr + result.stdout
