@@ -17,9 +17,9 @@ import open3d as o3d
 
 @dataclass(frozen=True)
 class FilterCounts:
-    """Point counts after each filtering step (equal to the previous count when a step is off)."""
+    """Finite input points, then the count after each step (unchanged when a step is off)."""
 
-    input: int
+    finite: int
     cropped: int
     downsampled: int
     inliers: int

@@ -27,12 +27,12 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray
-from mvbb_ros.messages import box_markers, diagnostic_status, grasp_pose_array
+from mvbb_ros.messages import diagnostic_status, output_messages
 from mvbb_ros.pipeline import PipelineResult, process_cloud
 from mvbb_ros.settings import (
-    SPECS,
     PipelineSettings,
     SettingSpec,
+    SPECS,
     validate_combination,
     validate_setting,
 )
@@ -246,28 +246,18 @@ class DecomposerNode(Node):
         self._last_result = result
         self._publish(cloud, result)
         self.get_logger().debug(
-            f'{result.counts.input} points -> {len(result.leaves)} boxes, '
+            f'{result.counts.finite} points -> {len(result.leaves)} boxes, '
             f'{len(result.grasps)} grasps in {(time.perf_counter() - start) * 1e3:.1f} ms'
         )
 
     def _publish(self, cloud: PointCloud2, result: PipelineResult | None) -> None:
-        header = cloud.header
-        decomposition = None if result is None else result.decomposition
-        leaves = [] if decomposition is None else list(decomposition.leaves)
-        counts = [] if decomposition is None else decomposition.leaf_point_indices
-        labels = [f'{i}: {len(indices)} pts' for i, indices in enumerate(counts)]
-        self._boxes_pub.publish(box_markers(leaves, header, labels=labels))
-        if self._settings.publish_tree:
-            inner = (
-                []
-                if decomposition is None
-                else [node.box for node in decomposition.nodes if not node.is_leaf]
-            )
-            self._tree_pub.publish(
-                box_markers(inner, header, namespace_prefix='tree_', fill_alpha=0.0)
-            )
-        grasps = [] if result is None else result.grasps
-        self._grasps_pub.publish(grasp_pose_array(grasps, header))
+        publishers = {
+            'boxes': self._boxes_pub,
+            'tree': self._tree_pub,
+            'grasps': self._grasps_pub,
+        }
+        for suffix, message in output_messages(result, cloud.header, self._settings).items():
+            publishers[suffix].publish(message)
 
     def _publish_diagnostics(self) -> None:
         result = self._last_result
@@ -275,7 +265,7 @@ class DecomposerNode(Node):
         if result is not None:
             values.update(
                 {
-                    'input_points': result.counts.input,
+                    'input_points': result.counts.finite,
                     'filtered_points': result.counts.inliers,
                     'boxes': len(result.leaves),
                     'grasps': len(result.grasps),

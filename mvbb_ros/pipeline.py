@@ -13,8 +13,8 @@ import time
 from typing import Any
 
 from mvbb_ros.box import Box
-from mvbb_ros.decomposition import Decomposition, decompose
-from mvbb_ros.filtering import FilterCounts, filter_points
+from mvbb_ros.decomposition import decompose, Decomposition
+from mvbb_ros.filtering import filter_points, FilterCounts
 from mvbb_ros.grasps import Grasp, grasp_hypotheses
 from mvbb_ros.pointcloud2 import CloudFormatError, read_xyz
 from mvbb_ros.settings import PipelineSettings
@@ -76,7 +76,7 @@ def process_points(
     timings['filter'] = (time.perf_counter() - start) * 1e3
     if len(filtered) < settings.min_points:
         warning = (
-            f'only {len(filtered)} of {counts.input} points left after filtering, fewer than '
+            f'only {len(filtered)} of {counts.finite} points left after filtering, fewer than '
             f'min_points = {settings.min_points}'
         )
         return PipelineResult(counts=counts, timings_ms=timings, warning=warning)

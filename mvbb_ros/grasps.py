@@ -1,0 +1,667 @@
+"""
+Face-approach grasp hypotheses on the boxes of a decomposition (plain numpy/scipy, no ROS).
+
+Huebner et al. (ICRA 2008), Sections IV-B and V: every face of every leaf box gives four
+hypotheses; occluded and ungraspable faces are removed; the rest are ranked by a task strategy.
+
+Units are those of the boxes (metres for sensor data). The shared GraspIt! models are in
+millimetres: scale every length parameter (gripper width, standoff, tolerances, clearance) with
+them.
+
+Hypotheses
+----------
+For box ``i`` and face ``f`` (index into :data:`mvbb_ros.box.FACE_NAMES`: +a, -a, +b, -b, +c, -c,
+where a, b, c are the box axes, the columns of ``Box.rotation``), with outward unit normal ``n``:
+
+* ``position = face_centre + standoff * n``: the pre-grasp pose of the gripper frame origin
+  (take it as the TCP, between the fingertips), ``standoff`` off the face centre;
+* ``approach = -n``: the gripper moves along the negative face normal towards the face;
+* ``closing``: the fingers close along a face edge. Roll 0 closes along the next box axis in
+  cyclic order (face on axis k: axis (k + 1) mod 3, so faces +-a close along b, +-b along c,
+  +-c along a); roll ``r`` is that direction turned by ``r`` degrees about ``approach``
+  (right-hand rule), for r = 0, 90, 180, 270: so 0 and 180 close along one edge, 90 and 270
+  along the other, in both senses. One box gives 6 x 4 = 24 hypotheses;
+* ``width``: the opening the gripper needs, the box extent along ``closing`` (the distance
+  between the two opposite faces the fingers close on). Hypotheses wider than
+  ``gripper_max_width`` are removed (equal is kept).
+
+Gripper pose convention
+-----------------------
+``quaternion`` (x, y, z, w, w >= 0, as in ROS messages) is the orientation of the gripper frame in
+the boxes' frame. Its rotation matrix has the gripper axes as columns:
+
+====================  =====================  =====================  =========================
+``approach_axis``     gripper x              gripper y              gripper z
+====================  =====================  =====================  =========================
+``'z'`` (default)     closing x approach     closing                approach
+``'x'``               approach               closing                approach x closing
+====================  =====================  =====================  =========================
+
+So with the default the gripper's +z axis points from the palm towards the fingertips (the
+direction of motion) and the fingers open and close along its y axis, as for the Franka Hand
+(``panda_hand_tcp``), the Robotiq 2F grippers and most ROS parallel-jaw gripper URDFs. Choose
+``'x'`` for grippers whose +x axis points along the fingers (the ROS convention for tool frames
+such as ``tool0`` on some arms and the ``grasping_frame`` used by several MoveIt examples). The
+closing axis is the gripper y axis in both conventions; both frames are right-handed.
+
+Occlusion (exact)
+-----------------
+A face of box ``i`` is *occluded* when another leaf box ``j`` covers or touches it. Precisely:
+the face rectangle is inset by ``tol`` from its four edges and swept ``tol`` outwards along its
+normal, giving a thin slab in box ``i``'s frame (from the face plane to ``tol`` in front of it);
+the face is occluded when that closed slab and the closed box ``j`` intersect, decided exactly by
+the separating-axis test for two oriented boxes (15 candidate axes, :func:`boxes_intersect`).
+Hence:
+
+* box ``j`` on the face or within ``tol`` in front of it, beyond a rim strip ``tol`` wide,
+  occludes it; so does a box ``j`` that overlaps box ``i`` through the face plane, and a box
+  ``i`` that lies inside ``j`` loses every face;
+* a box ``j`` inside box ``i`` (not reaching the face plane) does not occlude its faces, and
+  neither does a neighbour that only shares an edge or a corner of the face (a box stacked on
+  top does not occlude the side faces below it).
+
+``tol`` is ``contact_tolerance`` when given (absolute, in the boxes' units); otherwise it is
+``contact_fraction`` (default 0.1) of the smaller *size* of the two boxes, where a box's size is
+its middle extent (:func:`box_sizes`; a flat box, fitted to a planar patch or a ring of mesh
+vertices, keeps the size of its face). A floor of 1e-9 of the scene size (plus coordinate rounding)
+is always added, and the slab also reaches that floor behind the face plane, so that exact contact
+(coincident planes) does not depend on rounding. The tolerance is both the depth of the slab (gaps
+up to ``tol`` count as touching) and the rim inset, so a neighbour meeting the face only along an
+edge occludes it only when its surface makes less than 45 degrees with the face, and a neighbour
+that overlaps the face by less than ``tol`` at its rim does not occlude it.
+
+Why 0.1 of the middle extent (measured with :func:`mvbb_ros.decomposition.decompose` on the
+shared bunny, Homer, duck, mug and flask vertex models at t = 0.90, 0.94 and 0.98, 15
+decompositions, 1,020 faces): boxes from a split are fitted separately, so siblings overlap (the
+dense models) or leave a gap of about the sampling step across the cut. The smallest non-zero
+extent is no scale for that: it is ~0 for the flat boxes of planar patches and vertex rings.
+Against the fraction of each face lying inside other leaves (a 21 x 21 sample grid), the
+fraction 0.1 keeps no face that is 15 % or more covered (0.2 keeps 2) and occludes 43 faces that
+are covered by a sliver of 0-5 % at the rim (0.02: 74; 0.05: 54). Sensor clouds leave sibling
+gaps of a few millimetres, under 0.1 of a box a few centimetres wide. The GraspIt! vertex models
+are sampled in rings up to ~15 mm apart (sibling gaps 0.18-0.4 of the box size): pass
+``contact_tolerance`` of about that ring spacing for them.
+
+Support (ungraspable from below)
+--------------------------------
+``up`` is the unit up direction in the boxes' frame; ``support_plane`` is (a, b, c, d) with the
+plane ``a x + b y + c z + d = 0`` and (a, b, c) pointing up (normalised here). When only the plane
+is given, ``up`` is its normal; when both are given, ``up`` is used for the direction test.
+
+* Direction test (``up`` or plane): a hypothesis approaching upwards by more than
+  ``max_approach_elevation_deg`` (default 45) above the horizontal is removed, i.e. when
+  ``dot(approach, up) > sin(max_approach_elevation_deg)``. With the default, this removes a face
+  exactly when its outward normal is within 45 degrees of down, which is at most one face per box
+  (its bottom face), whatever the tilt of the box; side faces of tilted boxes are kept.
+* Clearance test (plane only): the hypothesis is removed when the pre-grasp ``position`` or
+  either finger at the face, ``face_centre +- (width / 2) * closing``, lies less than
+  ``support_clearance`` (default 0.01, half a finger pad) above the plane. This removes, for
+  example, side grasps closing vertically around a box that rests on the table. Finger length is
+  not modelled.
+
+Ranking strategies
+------------------
+The score is a property of the box, min-max normalised to [0, 1] over all leaf boxes (the best
+box scores 1, the worst 0, all 1 when every box ties), so it does not depend on the filters:
+
+* ``'largest'`` (default): largest volume first, for a stable grasp to transport the object
+  (the paper's first task example, and the usual pick-and-place case);
+* ``'smallest'``: smallest volume first, to show the object to a viewer (least occluding grasp);
+* ``'outermost'``: box centre farthest from the object's centroid first, to hand the object over.
+  The centroid is the mean of the decomposition's kept points when it has them (``.points``,
+  restricted to ``.kept_point_indices`` when present: the points of boxes dropped as noise do
+  not count), else the volume-weighted mean of the box centres (plain mean when every volume is
+  zero);
+* ``'nearest'``: box centre closest to ``sensor_origin`` (default the origin of the boxes'
+  frame, which is the sensor for a cloud in the sensor frame) first.
+
+The list is sorted by that key, best first. Keys are first rounded to 1e-9 of the largest key
+magnitude, so boxes whose volumes or distances differ only by floating-point rounding tie. Ties
+(equal keys, and the 24 hypotheses of one box) are broken by box index, then face index
+(FACE_NAMES order), then roll (0, 90, 180, 270).
+
+Per-filter counts: ``grasp_hypotheses(..., return_stats=True)`` also returns a
+:class:`GraspStats`; the filters apply in the order occlusion, width, support.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any, Literal, overload
+
+from mvbb_ros import box as box_geometry
+from mvbb_ros.box import Box
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+#: Face order (+a, -a, +b, -b, +c, -c) of :attr:`Grasp.face`, from :mod:`mvbb_ros.box`.
+FACE_NAMES: tuple[str, ...] = box_geometry.FACE_NAMES
+
+Strategy = Literal['largest', 'smallest', 'outermost', 'nearest']
+ApproachAxis = Literal['x', 'z']
+
+#: Ranking strategies accepted by :func:`grasp_hypotheses`; the first is the default.
+STRATEGIES: tuple[str, ...] = ('largest', 'smallest', 'outermost', 'nearest')
+#: Gripper rolls about the approach direction, in degrees, in hypothesis order.
+ROLLS_DEG: tuple[int, ...] = (0, 90, 180, 270)
+#: Hypotheses per box: six faces, four rolls.
+HYPOTHESES_PER_BOX = len(FACE_NAMES) * len(ROLLS_DEG)
+
+#: Defaults (metres): Franka Hand maximum opening; pre-grasp distance; finger clearance.
+DEFAULT_GRIPPER_MAX_WIDTH = 0.08
+DEFAULT_STANDOFF = 0.05
+DEFAULT_SUPPORT_CLEARANCE = 0.01
+#: Default relative contact tolerance, of the smaller :func:`box_sizes` of the two boxes.
+DEFAULT_CONTACT_FRACTION = 0.1
+#: Default limit on upward approaches, degrees above the horizontal.
+DEFAULT_MAX_APPROACH_ELEVATION_DEG = 45.0
+
+
+def _readonly(values: ArrayLike) -> FloatArray:
+    out = np.array(values, dtype=np.float64, copy=True)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Grasp:
+    """
+    One grasp hypothesis: a pre-grasp gripper pose in the boxes' frame.
+
+    :ivar position: (3,) gripper frame origin, ``standoff`` off the face centre along its normal.
+    :ivar quaternion: (4,) unit orientation (x, y, z, w), w >= 0, of the gripper frame (see the
+        module docstring for which gripper axis approaches and which closes).
+    :ivar approach: (3,) unit direction the gripper moves in, the negative outward face normal.
+    :ivar closing: (3,) unit direction the fingers close along, a face edge direction.
+    :ivar width: opening the gripper needs, the box extent along ``closing`` (boxes' units).
+    :ivar box_index: index of the box in the input sequence (or ``Decomposition.leaves``).
+    :ivar face: face index into :data:`mvbb_ros.box.FACE_NAMES` (+a, -a, +b, -b, +c, -c).
+    :ivar roll_deg: roll of the closing direction about ``approach``: 0, 90, 180 or 270.
+    :ivar score: strategy score in [0, 1] of the box (higher is better; list order is the rank).
+    """
+
+    position: FloatArray
+    quaternion: FloatArray
+    approach: FloatArray
+    closing: FloatArray
+    width: float
+    box_index: int
+    face: int
+    roll_deg: int
+    score: float
+
+    @property
+    def face_name(self) -> str:
+        """Name of the face, from :data:`mvbb_ros.box.FACE_NAMES` (e.g. ``'-z'``)."""
+        return FACE_NAMES[self.face]
+
+    @property
+    def rotation(self) -> FloatArray:
+        """(3, 3) rotation matrix of :attr:`quaternion`; its columns are the gripper axes."""
+        return Rotation.from_quat(self.quaternion).as_matrix()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of every field (arrays as lists) plus ``face_name``."""
+        return {
+            'position': [float(v) for v in self.position],
+            'quaternion': [float(v) for v in self.quaternion],
+            'approach': [float(v) for v in self.approach],
+            'closing': [float(v) for v in self.closing],
+            'width': self.width,
+            'box_index': self.box_index,
+            'face': self.face,
+            'face_name': self.face_name,
+            'roll_deg': self.roll_deg,
+            'score': self.score,
+        }
+
+    def __repr__(self) -> str:
+        position = np.array2string(self.position, precision=4)
+        return (
+            f'Grasp(box={self.box_index}, face={self.face_name}, roll={self.roll_deg}, '
+            f'position={position}, width={self.width:.4g}, score={self.score:.3g})'
+        )
+
+
+@dataclass(frozen=True)
+class GraspStats:
+    """
+    How many hypotheses (and faces) survive each filter, in the order they are applied.
+
+    :ivar boxes: number of leaf boxes.
+    :ivar faces: faces before any filter (6 per box).
+    :ivar faces_unoccluded: faces left after the occlusion filter.
+    :ivar faces_graspable: faces with at least one hypothesis left after every filter.
+    :ivar hypotheses: hypotheses before any filter (24 per box).
+    :ivar after_occlusion: hypotheses left after removing occluded faces.
+    :ivar after_width: ... and also those wider than ``gripper_max_width``.
+    :ivar after_support: ... and also those from below or too close to the support (the final
+        count, ``len(grasps)``).
+    """
+
+    boxes: int
+    faces: int
+    faces_unoccluded: int
+    faces_graspable: int
+    hypotheses: int
+    after_occlusion: int
+    after_width: int
+    after_support: int
+
+    def as_dict(self) -> dict[str, int]:
+        """Return the counts as a plain dict, for reports."""
+        return asdict(self)
+
+
+# Geometry helpers -------------------------------------------------------------------------------
+
+
+def box_sizes(extents: ArrayLike) -> FloatArray:
+    """
+    Return the size of each box used to scale the contact tolerance: its middle extent.
+
+    The middle of the three extents, or the largest when the middle one is zero (a segment). A
+    flat box (one zero extent, as fitted to a planar patch or a ring of mesh vertices) keeps the
+    size of its face.
+
+    :param extents: (..., 3) box extents.
+    :return: (...,) sizes, in the extents' units.
+    """
+    ordered = np.sort(np.asarray(extents, dtype=np.float64), axis=-1)
+    return np.where(ordered[..., 1] > 0.0, ordered[..., 1], ordered[..., 2])
+
+
+def boxes_intersect(
+    center_a: ArrayLike,
+    rotation_a: ArrayLike,
+    half_extents_a: ArrayLike,
+    center_b: ArrayLike,
+    rotation_b: ArrayLike,
+    half_extents_b: ArrayLike,
+) -> BoolArray:
+    """
+    Return whether two closed oriented boxes intersect, by the exact separating-axis test.
+
+    The arguments broadcast over leading dimensions: centres (..., 3), rotations (..., 3, 3)
+    whose columns are the box axes, half extents (..., 3) (>= 0, zero allowed). Candidate axes
+    are the 3 + 3 box axes and their 9 cross products; a cross product of (nearly) parallel axes,
+    norm below 1e-9, cannot separate and is skipped. Boxes that merely touch intersect.
+
+    :return: boolean array of the broadcast leading shape.
+    """
+    axes_a = np.swapaxes(np.asarray(rotation_a, dtype=np.float64), -1, -2)  # rows = axes
+    axes_b = np.swapaxes(np.asarray(rotation_b, dtype=np.float64), -1, -2)
+    half_a = np.asarray(half_extents_a, dtype=np.float64)
+    half_b = np.asarray(half_extents_b, dtype=np.float64)
+    offset = np.asarray(center_b, dtype=np.float64) - np.asarray(center_a, dtype=np.float64)
+    axes_a, axes_b = np.broadcast_arrays(axes_a, axes_b)
+    cross = np.cross(axes_a[..., :, None, :], axes_b[..., None, :, :])
+    cross = cross.reshape(*cross.shape[:-3], 9, 3)
+    norms = np.linalg.norm(cross, axis=-1, keepdims=True)
+    usable = norms[..., 0] > 1e-9
+    cross = cross / np.where(usable[..., None], norms, 1.0)
+    candidates = np.concatenate([axes_a, axes_b, cross], axis=-2)  # (..., 15, 3)
+    valid = np.concatenate([np.ones(usable.shape[:-1] + (6,), dtype=bool), usable], axis=-1)
+    reach_a = np.einsum(
+        '...lk,...k->...l', np.abs(candidates @ np.swapaxes(axes_a, -1, -2)), half_a
+    )
+    reach_b = np.einsum(
+        '...lk,...k->...l', np.abs(candidates @ np.swapaxes(axes_b, -1, -2)), half_b
+    )
+    distance = np.abs(np.einsum('...ld,...d->...l', candidates, offset))
+    separated = valid & (distance > reach_a + reach_b)
+    return ~np.any(separated, axis=-1)
+
+
+def _occluded_faces(
+    centers: FloatArray,
+    rotations: FloatArray,
+    extents: FloatArray,
+    contact_tolerance: float | None,
+    contact_fraction: float,
+) -> BoolArray:
+    """Return (B, 6) whether each face is occluded by another box (see the module docstring)."""
+    count = len(centers)
+    occluded = np.zeros((count, len(FACE_NAMES)), dtype=bool)
+    if count < 2:
+        return occluded
+    scale = float(np.max(extents)) if extents.size else 0.0
+    floor = 1e-9 * scale + 8.0 * np.finfo(float).eps * float(np.max(np.abs(centers)))
+    if contact_tolerance is None:
+        sizes = box_sizes(extents)
+        tolerance = contact_fraction * np.minimum(sizes[:, None], sizes[None, :])
+    else:
+        tolerance = np.full((count, count), float(contact_tolerance))
+    tolerance = tolerance + floor  # (B_face_owner, B_other)
+    depth = tolerance + floor  # the slab reaches `floor` behind the face plane, for rounding
+
+    half = extents / 2.0
+    for face in range(len(FACE_NAMES)):
+        axis, sign = divmod(face, 2)
+        sign_value = -1.0 if sign else 1.0
+        normals = sign_value * rotations[:, :, axis]  # (B, 3)
+        face_centers = centers + normals * half[:, [axis]]
+        # Slab per (owner, other) pair: inset by tol in-plane, from the face plane to tol outside.
+        slab_half = np.maximum(half[:, None, :] - tolerance[:, :, None], 0.0)
+        slab_half[:, :, axis] = depth / 2.0
+        offsets = (tolerance - depth / 2.0)[:, :, None]
+        slab_centers = face_centers[:, None, :] + normals[:, None, :] * offsets
+        hits = boxes_intersect(
+            slab_centers,
+            rotations[:, None, :, :],
+            slab_half,
+            centers[None, :, :],
+            rotations[None, :, :, :],
+            half[None, :, :],
+        )
+        np.fill_diagonal(hits, False)
+        occluded[:, face] = hits.any(axis=1)
+    return occluded
+
+
+def _unit(vector: ArrayLike, name: str, size: int = 3) -> FloatArray:
+    out = np.asarray(vector, dtype=np.float64).reshape(-1)
+    if out.shape != (size,) or not np.all(np.isfinite(out)):
+        raise ValueError(f'{name} must be {size} finite numbers, got {vector!r}')
+    norm = float(np.linalg.norm(out[:3]))
+    if norm == 0.0:
+        raise ValueError(f'{name} must have a non-zero direction, got {vector!r}')
+    return out / norm
+
+
+def _leaf_boxes(decomposition_or_boxes: Any) -> tuple[list[Box], FloatArray | None]:
+    """Return the leaf boxes and, for a decomposition, its points (else None)."""
+    if isinstance(decomposition_or_boxes, Box):
+        return [decomposition_or_boxes], None
+    leaves = getattr(decomposition_or_boxes, 'leaves', None)
+    if leaves is not None:
+        points = getattr(decomposition_or_boxes, 'points', None)
+        if points is None:
+            return list(leaves), None
+        cloud = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        kept = getattr(decomposition_or_boxes, 'kept_point_indices', None)
+        if kept is not None:
+            cloud = cloud[np.asarray(kept, dtype=np.intp)]
+        return list(leaves), cloud
+    if isinstance(decomposition_or_boxes, Iterable):
+        return list(decomposition_or_boxes), None
+    raise TypeError(
+        'grasp_hypotheses expects a Box sequence or an object with .leaves, '
+        f'got {type(decomposition_or_boxes).__name__}'
+    )
+
+
+def _object_centroid(boxes: Sequence[Box], points: FloatArray | None) -> FloatArray:
+    if points is not None and len(points):
+        return points.mean(axis=0)
+    centers = np.array([box.center for box in boxes])
+    volumes = np.array([box.volume for box in boxes])
+    if volumes.sum() > 0.0:
+        return (centers * volumes[:, None]).sum(axis=0) / volumes.sum()
+    return centers.mean(axis=0)
+
+
+def _strategy_keys(
+    strategy: str, boxes: Sequence[Box], points: FloatArray | None, sensor_origin: ArrayLike
+) -> FloatArray:
+    """Return per box a ranking key where larger is better."""
+    volumes = np.array([box.volume for box in boxes])
+    centers = np.array([box.center for box in boxes])
+    if strategy == 'largest':
+        return volumes
+    if strategy == 'smallest':
+        return -volumes
+    if strategy == 'outermost':
+        return np.linalg.norm(centers - _object_centroid(boxes, points), axis=1)
+    origin = np.asarray(sensor_origin, dtype=np.float64).reshape(3)
+    return -np.linalg.norm(centers - origin, axis=1)
+
+
+def _tie_rounded(keys: FloatArray) -> FloatArray:
+    """Return `keys` rounded to 1e-9 of their largest magnitude, so rounding makes no order."""
+    step = 1e-9 * float(np.max(np.abs(keys)))
+    if step == 0.0 or not np.isfinite(step):
+        return keys.copy()
+    return np.round(keys / step) * step
+
+
+def _normalised(keys: FloatArray) -> FloatArray:
+    low, high = float(keys.min()), float(keys.max())
+    if high - low <= 0.0:
+        return np.ones_like(keys)
+    return np.clip((keys - low) / (high - low), 0.0, 1.0)
+
+
+# Public API -------------------------------------------------------------------------------------
+
+
+@overload
+def grasp_hypotheses(
+    decomposition_or_boxes: Any,
+    *,
+    gripper_max_width: float = ...,
+    standoff: float = ...,
+    approach_axis: ApproachAxis = ...,
+    strategy: Strategy = ...,
+    up: ArrayLike | None = ...,
+    support_plane: ArrayLike | None = ...,
+    support_clearance: float = ...,
+    max_approach_elevation_deg: float = ...,
+    contact_tolerance: float | None = ...,
+    contact_fraction: float = ...,
+    sensor_origin: ArrayLike = ...,
+    return_stats: Literal[False] = ...,
+) -> list[Grasp]: ...
+
+
+@overload
+def grasp_hypotheses(
+    decomposition_or_boxes: Any,
+    *,
+    gripper_max_width: float = ...,
+    standoff: float = ...,
+    approach_axis: ApproachAxis = ...,
+    strategy: Strategy = ...,
+    up: ArrayLike | None = ...,
+    support_plane: ArrayLike | None = ...,
+    support_clearance: float = ...,
+    max_approach_elevation_deg: float = ...,
+    contact_tolerance: float | None = ...,
+    contact_fraction: float = ...,
+    sensor_origin: ArrayLike = ...,
+    return_stats: Literal[True],
+) -> tuple[list[Grasp], GraspStats]: ...
+
+
+def grasp_hypotheses(
+    decomposition_or_boxes: Any,
+    *,
+    gripper_max_width: float = DEFAULT_GRIPPER_MAX_WIDTH,
+    standoff: float = DEFAULT_STANDOFF,
+    approach_axis: ApproachAxis = 'z',
+    strategy: Strategy = 'largest',
+    up: ArrayLike | None = None,
+    support_plane: ArrayLike | None = None,
+    support_clearance: float = DEFAULT_SUPPORT_CLEARANCE,
+    max_approach_elevation_deg: float = DEFAULT_MAX_APPROACH_ELEVATION_DEG,
+    contact_tolerance: float | None = None,
+    contact_fraction: float = DEFAULT_CONTACT_FRACTION,
+    sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
+    return_stats: bool = False,
+) -> list[Grasp] | tuple[list[Grasp], GraspStats]:
+    """
+    Return face-approach grasp hypotheses on leaf boxes, filtered and ranked (best first).
+
+    The module docstring defines the hypotheses, the pose convention, occlusion, the support
+    filter and the strategies precisely. All lengths are in the boxes' units (metres for
+    sensor data; scale them for the millimetre GraspIt! models).
+
+    :param decomposition_or_boxes: a sequence of :class:`~mvbb_ros.box.Box`, a single box, or a
+        decomposition (any object with ``.leaves``, a list of boxes, and optionally ``.points``,
+        (N, 3), and ``.kept_point_indices``, used for the object centroid).
+    :param gripper_max_width: maximum opening of the gripper; wider hypotheses are removed
+        (default 0.08 m, the Franka Hand).
+    :param standoff: distance of the pre-grasp position from the face centre along the outward
+        normal (>= 0, default 0.05 m).
+    :param approach_axis: gripper axis that points along ``approach``, ``'z'`` (default) or
+        ``'x'``; the fingers close along the gripper y axis.
+    :param strategy: ``'largest'`` (default), ``'smallest'``, ``'outermost'`` or ``'nearest'``.
+    :param up: up direction (3,) in the boxes' frame (any length); enables the direction test.
+    :param support_plane: (a, b, c, d), plane ``a x + b y + c z + d = 0`` with (a, b, c) up;
+        enables the direction test (with its normal as ``up`` unless ``up`` is given) and the
+        clearance test.
+    :param support_clearance: minimum height above the support plane of the pre-grasp position
+        and of both fingers at the face (default 0.01 m).
+    :param max_approach_elevation_deg: approaches pointing upwards by more than this many
+        degrees above the horizontal are removed (default 45, in [0, 90]).
+    :param contact_tolerance: absolute occlusion tolerance; None (default) uses
+        ``contact_fraction``.
+    :param contact_fraction: relative occlusion tolerance used when ``contact_tolerance`` is None
+        (default 0.1, of the smaller middle extent of the two boxes).
+    :param sensor_origin: sensor position (3,) for ``'nearest'`` (default the frame origin).
+    :param return_stats: also return the per-filter counts.
+    :return: the surviving hypotheses sorted best first, or ``(grasps, stats)`` when
+        ``return_stats`` is true.
+    :raises ValueError: on an unknown strategy or approach axis, or an invalid parameter.
+    :raises TypeError: when the input is neither boxes nor a decomposition.
+    """
+    if strategy not in STRATEGIES:
+        raise ValueError(f'strategy must be one of {STRATEGIES}, got {strategy!r}')
+    if approach_axis not in ('x', 'z'):
+        raise ValueError(f"approach_axis must be 'x' or 'z', got {approach_axis!r}")
+    if not gripper_max_width > 0.0:
+        raise ValueError(f'gripper_max_width must be > 0, got {gripper_max_width}')
+    if not standoff >= 0.0:
+        raise ValueError(f'standoff must be >= 0, got {standoff}')
+    if not 0.0 <= max_approach_elevation_deg <= 90.0:
+        raise ValueError(
+            f'max_approach_elevation_deg must be in [0, 90], got {max_approach_elevation_deg}'
+        )
+    if contact_tolerance is not None and not contact_tolerance >= 0.0:
+        raise ValueError(f'contact_tolerance must be >= 0 or None, got {contact_tolerance}')
+    if not contact_fraction >= 0.0:
+        raise ValueError(f'contact_fraction must be >= 0, got {contact_fraction}')
+
+    plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
+    if plane is not None:
+        plane = _unit(plane, 'support_plane', size=4)
+    up_direction = None if up is None else _unit(up, 'up')
+    if up_direction is None and plane is not None:
+        up_direction = plane[:3]
+
+    boxes, points = _leaf_boxes(decomposition_or_boxes)
+    for box in boxes:
+        if not isinstance(box, Box):
+            raise TypeError(f'leaf boxes must be mvbb_ros.box.Box, got {type(box).__name__}')
+    if not boxes:
+        empty = GraspStats(0, 0, 0, 0, 0, 0, 0, 0)
+        return ([], empty) if return_stats else []
+
+    centers = np.array([box.center for box in boxes])
+    rotations = np.array([box.rotation for box in boxes])
+    extents = np.array([box.extents for box in boxes])
+    count = len(boxes)
+    n_faces, n_rolls = len(FACE_NAMES), len(ROLLS_DEG)
+
+    # Hypotheses, shape (B, 6, 4, ...), face-major then roll.
+    face_index = np.arange(n_faces)
+    face_axis = face_index // 2
+    face_sign = np.where(face_index % 2 == 0, 1.0, -1.0)
+    normals = face_sign[None, :, None] * np.swapaxes(rotations, 1, 2)[:, face_axis, :]
+    face_centers = centers[:, None, :] + normals * (extents[:, face_axis] / 2.0)[:, :, None]
+    approach = -normals
+    edge_axis = (face_axis + 1) % 3
+    edge = np.swapaxes(rotations, 1, 2)[:, edge_axis, :]  # roll 0 closing, (B, 6, 3)
+    turned = np.cross(approach, edge)  # edge turned by +90 degrees about approach
+    roll_rad = np.deg2rad(np.array(ROLLS_DEG, dtype=np.float64))
+    cos_roll = np.rint(np.cos(roll_rad))  # exactly 1, 0, -1, 0
+    sin_roll = np.rint(np.sin(roll_rad))
+    closing = (
+        cos_roll[None, None, :, None] * edge[:, :, None, :]
+        + sin_roll[None, None, :, None] * turned[:, :, None, :]
+        + 0.0  # no negative zeros
+    )
+    other_axis = (face_axis + 2) % 3
+    edge_widths = np.stack([extents[:, edge_axis], extents[:, other_axis]], axis=-1)  # (B, 6, 2)
+    widths = edge_widths[:, :, np.array([0, 1, 0, 1])]  # (B, 6, 4)
+    approach_per_roll = np.broadcast_to(approach[:, :, None, :], closing.shape)
+    positions = np.broadcast_to(
+        (face_centers + standoff * normals)[:, :, None, :], closing.shape
+    ).copy()
+
+    # Filters.
+    shape = (count, n_faces, n_rolls)
+    occluded = _occluded_faces(centers, rotations, extents, contact_tolerance, contact_fraction)
+    keep_occlusion = np.broadcast_to(~occluded[:, :, None], shape)
+    keep_width = keep_occlusion & (widths <= gripper_max_width)
+    keep = keep_width.copy()
+    if up_direction is not None:
+        limit = np.sin(np.deg2rad(max_approach_elevation_deg))
+        keep &= approach_per_roll @ up_direction <= limit
+    if plane is not None:
+        half_span = (widths / 2.0)[..., None] * closing
+        fingers_at_face = face_centers[:, :, None, :]
+        heights = (
+            np.stack(
+                [
+                    positions @ plane[:3],
+                    (fingers_at_face + half_span) @ plane[:3],
+                    (fingers_at_face - half_span) @ plane[:3],
+                ]
+            )
+            + plane[3]
+        )
+        keep &= np.all(heights >= support_clearance, axis=0)
+
+    # Poses.
+    if approach_axis == 'z':
+        columns = (np.cross(closing, approach_per_roll), closing, approach_per_roll)
+    else:
+        columns = (approach_per_roll, closing, np.cross(approach_per_roll, closing))
+    gripper_rotations = np.stack(columns, axis=-1)  # (B, 6, 4, 3, 3)
+    selected = np.argwhere(keep)  # lexicographic: box, face, roll
+    quaternions = np.empty((len(selected), 4))
+    if len(selected):
+        matrices = gripper_rotations[keep]
+        quaternions = Rotation.from_matrix(matrices).as_quat()
+        quaternions[quaternions[:, 3] < 0.0] *= -1.0
+
+    keys = _tie_rounded(_strategy_keys(strategy, boxes, points, sensor_origin))
+    scores = _normalised(keys)
+    # Stable sort on the box key keeps (box, face, roll) order among ties.
+    order = np.argsort(-keys[selected[:, 0]], kind='stable') if len(selected) else selected[:, 0]
+
+    grasps = []
+    for row in order:
+        box_i, face_i, roll_i = (int(v) for v in selected[row])
+        grasps.append(
+            Grasp(
+                position=_readonly(positions[box_i, face_i, roll_i]),
+                quaternion=_readonly(quaternions[row]),
+                approach=_readonly(approach[box_i, face_i]),
+                closing=_readonly(closing[box_i, face_i, roll_i]),
+                width=float(widths[box_i, face_i, roll_i]),
+                box_index=box_i,
+                face=face_i,
+                roll_deg=ROLLS_DEG[roll_i],
+                score=float(scores[box_i]),
+            )
+        )
+    if not return_stats:
+        return grasps
+    stats = GraspStats(
+        boxes=count,
+        faces=count * n_faces,
+        faces_unoccluded=int(np.count_nonzero(~occluded)),
+        faces_graspable=int(np.count_nonzero(keep.any(axis=2))),
+        hypotheses=count * HYPOTHESES_PER_BOX,
+        after_occlusion=int(np.count_nonzero(keep_occlusion)),
+        after_width=int(np.count_nonzero(keep_width)),
+        after_support=len(grasps),
+    )
+    return grasps, stats
