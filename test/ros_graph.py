@@ -87,14 +87,25 @@ class Graph:
         return condition()
 
     def publish_until_answered(self, publisher: Any, cloud: PointCloud2) -> PoseArray:
-        """Publish `cloud` until a new PoseArray arrives (discovery takes a moment)."""
+        """Publish `cloud` until a PoseArray with its stamp arrives (discovery takes a moment)."""
+        stamp = (cloud.header.stamp.sec, cloud.header.stamp.nanosec)
         seen = len(self.grasps)
-        deadline = time.monotonic() + 15.0
-        while time.monotonic() < deadline and len(self.grasps) == seen:
+
+        def answered() -> bool:
+            return any(
+                (g.header.stamp.sec, g.header.stamp.nanosec) == stamp for g in self.grasps[seen:]
+            )
+
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and not answered():
             publisher.publish(cloud)
-            self.spin_until(lambda: len(self.grasps) > seen, timeout_s=0.3)
-        assert len(self.grasps) > seen, 'the decomposer never answered'
-        return self.grasps[-1]
+            self.spin_until(answered, timeout_s=1.0)
+        assert answered(), 'the decomposer never answered'
+        return next(
+            g
+            for g in reversed(self.grasps)
+            if (g.header.stamp.sec, g.header.stamp.nanosec) == stamp
+        )
 
     def close(self) -> None:
         """Destroy the nodes and shut the context down."""
