@@ -1,5 +1,5 @@
 """
-The `mvbb` command: offline decomposition, the demo, and (later) bag tools.
+The `mvbb` command: offline decomposition, the demo, and the bag tools.
 
 Each subcommand imports what it needs when it runs, so `mvbb --help` stays fast and the offline
 commands work without a ROS graph.
@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 import sys
 import time
+from typing import Any
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -70,6 +71,130 @@ def _add_decomposition_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    value = float(text)
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
+    return value
+
+
+def _add_param_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        '-p',
+        '--param',
+        action='append',
+        default=[],
+        metavar='NAME:=VALUE',
+        help='set a node parameter, as ros2 run ... -p does (repeatable); see '
+        'config/decomposer.yaml for the names',
+    )
+
+
+def _add_progress_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        '--progress',
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help='progress bar on stderr (default: only when stderr is a terminal)',
+    )
+
+
+def _add_bag_commands(commands: argparse._SubParsersAction) -> None:
+    """Add `mvbb bag play` and `mvbb bag process`."""
+    bag = commands.add_parser(
+        'bag',
+        help='replay bags through the decomposer, live (play) or offline (process)',
+        description='Bag tools built on rosbags: they read rosbag2 bags (a directory with '
+        'metadata.yaml, sqlite3 or MCAP, or a bare .db3/.mcap file) and ROS 1 .bag files.',
+    )
+    bag_commands = bag.add_subparsers(dest='bag_command', metavar='BAG_COMMAND')
+    bag_commands.required = True
+
+    play = bag_commands.add_parser(
+        'play',
+        help='publish the PointCloud2 messages of a bag on the live graph',
+        description='Publish the PointCloud2 messages of a bag on their recorded topics, with '
+        'the recorded timing divided by --rate, optionally with /clock for use_sim_time. Ends '
+        'at the end of the bag (with --loop: at SIGINT); SIGINT exits 0.',
+    )
+    play.add_argument(
+        'bag', type=Path, metavar='BAG', help='rosbag2 directory, .db3 or .mcap file, or .bag'
+    )
+    play.add_argument('--topic', help='play only this PointCloud2 topic (default: all of them)')
+    play.add_argument(
+        '--rate', type=_positive_float, default=1.0, help='speed factor (default 1: real time)'
+    )
+    play.add_argument('--loop', action='store_true', help='start again at the end, until SIGINT')
+    play.add_argument(
+        '--clock', action='store_true', help='also publish /clock (bag time) for use_sim_time'
+    )
+    play.add_argument(
+        '--clock-hz',
+        type=_positive_float,
+        default=40.0,
+        metavar='HZ',
+        help='/clock rate (default 40 Hz)',
+    )
+    play.add_argument(
+        '--wait-for-subscribers',
+        type=_non_negative_float,
+        default=1.0,
+        metavar='SECONDS',
+        help='wait up to this long for a subscriber on every cloud topic before playing, so no '
+        'cloud is lost to discovery (default 1; 0 does not wait)',
+    )
+    _add_progress_option(play)
+    play.set_defaults(handler=_run_bag_play)
+
+    process = bag_commands.add_parser(
+        'process',
+        help="run the node's pipeline on every cloud of a bag and write a bag of the results",
+        description="Run exactly the node's pipeline on every cloud of IN, offline, and write "
+        'the boxes (MarkerArray), the hierarchy (MarkerArray, unless publish_tree:=false) and '
+        'the grasps (PoseArray) into the rosbag2 OUT at the input timestamps, stamped with the '
+        'input headers; OUT is written atomically. Prints one line per cloud and totals.',
+    )
+    process.add_argument('input', type=Path, metavar='IN', help='the input bag (any format)')
+    process.add_argument('output', type=Path, metavar='OUT', help='the rosbag2 directory to write')
+    process.add_argument(
+        '--topic', help='the PointCloud2 topic (needed when IN has more than one)'
+    )
+    _add_param_option(process)
+    process.add_argument(
+        '--params-file',
+        type=Path,
+        help='a ROS parameter YAML file (like config/decomposer.yaml); -p overrides it',
+    )
+    process.add_argument(
+        '--with-input', action='store_true', help='also write the input clouds, on their topic'
+    )
+    process.add_argument(
+        '--namespace',
+        default='/decomposer',
+        help='prefix of the output topics (default /decomposer, as the node)',
+    )
+    process.add_argument(
+        '--storage',
+        choices=('mcap', 'sqlite3'),
+        default='mcap',
+        help='rosbag2 storage of OUT (default mcap, as ros2 bag in Jazzy)',
+    )
+    process.add_argument(
+        '--compress', action='store_true', help='zstd compression (MCAP chunks, sqlite3 messages)'
+    )
+    process.add_argument('--force', action='store_true', help='replace OUT if it exists')
+    process.add_argument('--quiet', action='store_true', help='print only the totals')
+    _add_progress_option(process)
+    process.set_defaults(handler=_run_bag_process)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser of the `mvbb` command."""
     parser = argparse.ArgumentParser(
@@ -94,18 +219,36 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = commands.add_parser(
         'demo',
-        help='decompose the built-in synthetic sample and write JSON and a picture',
-        description='Run the main job on a sample the project makes itself: a mug ray-cast from '
-        'a virtual depth camera with sensor noise.',
+        help='run the node on a replayed synthetic stream, end to end (--offline: one object)',
+        description='Run the main job on data the project makes itself: write a small bag of a '
+        'synthetic table-top scene seen by a moving depth camera with sensor noise, start the '
+        'decomposer node, play the bag through it (mvbb bag play) and print what it publishes '
+        'for each frame, then write the processed bag (mvbb bag process) and a picture. With '
+        '--offline: decompose one synthetic object without ROS and write JSON and a picture.',
     )
     demo.add_argument('--out', type=Path, default=Path('out'), help='output folder (default out/)')
     demo.add_argument(
+        '--offline',
+        action='store_true',
+        help='decompose one synthetic object without ROS (the earlier demo)',
+    )
+    demo.add_argument(
         '--object',
         default='mug',
-        help='synthetic object kind: mug, can or box (default mug)',
+        help='with --offline: synthetic object kind: mug, can or box (default mug)',
     )
+    demo.add_argument(
+        '--frames', type=int, default=6, help='frames in the demo bag (default 6, at 5 Hz)'
+    )
+    demo.add_argument(
+        '--rate', type=_positive_float, default=1.0, help='playback rate (default 1)'
+    )
+    _add_param_option(demo)
     _add_decomposition_options(demo)
     demo.set_defaults(handler=_run_demo)
+
+    _add_bag_commands(commands)
+    _add_evaluate_command(commands)
     return parser
 
 
@@ -204,7 +347,7 @@ def _run_decompose(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _run_demo(args: argparse.Namespace) -> int:
+def _run_offline_demo(args: argparse.Namespace) -> int:
     from mvbb_ros.synthetic import segmented_object_cloud
 
     points = segmented_object_cloud(args.object, seed=args.seed)
@@ -217,6 +360,254 @@ def _run_demo(args: argparse.Namespace) -> int:
         png_path=out / f'demo_{args.object}.png',
         title=f'synthetic {args.object}: t = {args.gain_threshold:g}',
     )
+    return EXIT_OK
+
+
+def _demo_assignments(args: argparse.Namespace) -> list[str]:
+    """Return the demo's decomposition options (where not the default) and -p as parameters."""
+    from mvbb_ros.settings import defaults
+
+    values = {
+        'gain_threshold': args.gain_threshold,
+        'split_measure': args.split_measure,
+        'rescore_cuts': args.rescore_cuts,
+        'seed': args.seed,
+        'min_points': args.min_points,
+        'gripper_max_width': args.gripper_max_width,
+        'standoff': args.standoff,
+        'grasp_strategy': args.strategy,
+    }
+    default = defaults()
+    options = [
+        f'{name}:={value}'
+        for name, value in values.items()
+        if value is not None and value != default[name]
+    ]
+    return options + list(args.param)
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    if args.offline:
+        return _run_offline_demo(args)
+    from mvbb_ros.demo import run_demo
+
+    return run_demo(
+        args.out, assignments=_demo_assignments(args), frames=args.frames, rate=args.rate
+    )
+
+
+def _settings_from_args(args: argparse.Namespace) -> object:
+    """Return PipelineSettings from --params-file and -p (ValueError names a bad one)."""
+    from mvbb_ros.settings import parse_assignments, settings_from_mapping
+
+    values: dict = {}
+    if getattr(args, 'params_file', None) is not None:
+        values.update(_read_params_file(args.params_file))
+    values.update(parse_assignments(args.param))
+    return settings_from_mapping(values)
+
+
+def _read_params_file(path: Path) -> dict:
+    """Return the ros__parameters of a ROS parameter file (the first node entry with some)."""
+    import yaml
+
+    with open(path) as handle:
+        document = yaml.safe_load(handle)
+    if isinstance(document, dict):
+        for entry in document.values():
+            if isinstance(entry, dict) and isinstance(entry.get('ros__parameters'), dict):
+                return dict(entry['ros__parameters'])
+    raise ValueError(f'{path} has no <node>: ros__parameters: mapping')
+
+
+def _bag_error(args: argparse.Namespace, error: BaseException) -> int:
+    print(f'mvbb bag {args.bag_command}: error: {error}', file=sys.stderr)
+    return EXIT_FAILURE
+
+
+def _run_bag_play(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from mvbb_ros.bag import BagError
+    from mvbb_ros.bag_play import play_bag
+
+    stop = threading.Event()
+    previous = {
+        number: signal.signal(number, lambda *_: stop.set())
+        for number in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        stats = play_bag(
+            args.bag,
+            topic=args.topic,
+            rate=args.rate,
+            loop=args.loop,
+            clock=args.clock,
+            clock_hz=args.clock_hz,
+            wait_for_subscribers=args.wait_for_subscribers,
+            stop=stop,
+            progress=args.progress,
+        )
+    except BagError as error:
+        return _bag_error(args, error)
+    except KeyboardInterrupt:
+        return EXIT_OK
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+    loops = f' ({stats.loops} complete loops)' if args.loop else ''
+    clock = f', {stats.clock_messages} /clock messages' if args.clock else ''
+    ending = 'stopped' if stats.interrupted else 'done'
+    print(
+        f'{ending}: published {stats.published} clouds on {", ".join(stats.topics)}{clock} '
+        f'in {stats.seconds:.2f} s{loops}',
+        file=sys.stderr,
+    )
+    return EXIT_OK
+
+
+def _run_bag_process(args: argparse.Namespace) -> int:
+    from mvbb_ros.bag import BagError, format_row, format_totals, process_bag, TABLE_HEADER
+    from mvbb_ros.progress import ProgressBar
+
+    try:
+        settings = _settings_from_args(args)
+    except (OSError, ValueError) as error:
+        return _bag_error(args, error)
+    bar = ProgressBar(None, label='processing', enabled=args.progress)
+    first: list[int] = []
+
+    def start(total: int) -> None:
+        bar.total = total
+        if not args.quiet:
+            print(TABLE_HEADER, flush=True)
+
+    def report(row: Any, cloud: Any, result: Any) -> None:
+        if not first:
+            first.append(row.timestamp_ns)
+        if not args.quiet:
+            bar.close()
+            print(format_row(row, first[0]), flush=True)
+        bar.update(
+            row.index + 1, f'last: {row.boxes} boxes in {row.milliseconds:.0f} ms', force=True
+        )
+
+    print(f'{args.input} -> {args.output}', flush=True)
+    try:
+        summary = process_bag(
+            args.input,
+            args.output,
+            settings=settings,
+            topic=args.topic,
+            with_input=args.with_input,
+            namespace=args.namespace,
+            storage=args.storage,
+            compress=args.compress,
+            force=args.force,
+            on_start=start,
+            on_cloud=report,
+        )
+    except BagError as error:
+        bar.close()
+        return _bag_error(args, error)
+    except KeyboardInterrupt:
+        bar.close()
+        print('mvbb bag process: interrupted; nothing written', file=sys.stderr)
+        return 130
+    bar.close()
+    for line in format_totals(summary):
+        print(line)
+    return EXIT_OK
+
+
+def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:
+    """Add `mvbb evaluate` (grasp quality, paper Fig. 6; see mvbb_ros.evaluation)."""
+    evaluate = commands.add_parser(
+        'evaluate',
+        help='score box-face grasps against spherical grasps on a mesh (paper Fig. 6)',
+        description='Simulate a parallel-jaw gripper on a triangle mesh and score grasps by the '
+        'Ferrari-Canny epsilon and the wrench-space volume V: the spherical baseline, the root '
+        "box's 24 grasps and the hypotheses of decompositions at each threshold. Lengths are "
+        'relative to the object (its diameter D), so any mesh units work.',
+    )
+    evaluate.add_argument('mesh', type=Path, help='triangle mesh: .ply, .off, .obj, .stl')
+    evaluate.add_argument(
+        '--points', type=Path, help='cloud to fit the boxes to (default: the mesh vertices)'
+    )
+    evaluate.add_argument(
+        '--thresholds',
+        '-t',
+        type=float,
+        nargs='*',
+        default=[0.90, 0.94, 0.98],
+        help='decomposition gain thresholds (default 0.90 0.94 0.98; none: root box only)',
+    )
+    evaluate.add_argument(
+        '--spherical-step',
+        type=_non_negative_float,
+        default=10.0,
+        metavar='DEG',
+        help="angular step of the spherical baseline, dividing 180 (default 10: the paper's "
+        '22104 grasps; 20 is 8x faster; 0 skips it)',
+    )
+    evaluate.add_argument(
+        '--friction', type=_non_negative_float, default=0.5, help='Coulomb mu (default 0.5)'
+    )
+    evaluate.add_argument('--cone-edges', type=int, default=8, help='friction cone edges (8)')
+    evaluate.add_argument(
+        '--contact-radius',
+        type=_non_negative_float,
+        default=None,
+        help='soft-contact radius in mesh units (default finger width / 4; 0: hard contacts)',
+    )
+    evaluate.add_argument(
+        '--width-factor', type=_positive_float, default=1.2, help='opening / D (default 1.2)'
+    )
+    evaluate.add_argument(
+        '--depth-factor', type=_positive_float, default=0.5, help='finger depth / D (default 0.5)'
+    )
+    evaluate.add_argument('--seed', type=int, default=0, help='random seed of the box fit')
+    evaluate.add_argument('--json', type=Path, help='write the summary as JSON')
+    evaluate.add_argument('--png', type=Path, help='write the (epsilon, V) scatter plot')
+    evaluate.set_defaults(handler=_run_evaluate)
+
+
+def _run_evaluate(args: argparse.Namespace) -> int:
+    from mvbb_ros import evaluation
+
+    target = evaluation.GraspTarget.from_mesh(args.mesh)
+    points = None
+    if args.points is not None:
+        from mvbb_ros.cloud_io import load_cloud
+
+        points = load_cloud(args.points)
+    comparison = evaluation.compare_grasp_sets(
+        target,
+        points,
+        name=args.mesh.stem,
+        gripper=evaluation.ParallelJawGripper.for_object(
+            target.diameter, width_factor=args.width_factor, depth_factor=args.depth_factor
+        ),
+        thresholds=args.thresholds,
+        spherical_step=args.spherical_step or None,
+        friction=args.friction,
+        cone_edges=args.cone_edges,
+        contact_radius=args.contact_radius,
+        seed=args.seed,
+        progress=lambda message: print(message, file=sys.stderr),
+    )
+    print(comparison.describe())
+    print(evaluation.format_comparison(comparison, markdown=False))
+    if args.json is not None:
+        from mvbb_ros.atomic import atomic_open
+
+        with atomic_open(args.json) as handle:
+            json.dump(comparison.to_dict(), handle, indent=2)
+        print(f'wrote {args.json}')
+    if args.png is not None:
+        evaluation.plot_quality_space(comparison, args.png)
+        print(f'wrote {args.png}')
     return EXIT_OK
 
 

@@ -6,23 +6,31 @@ Build the node's output messages from pipeline results (a thin layer over the ge
   (``<prefix>edges``) and a text label (``<prefix>labels``), with id = box index, so a box keeps
   its namespace and id from one cloud to the next;
 - grasps: a `geometry_msgs/PoseArray`, best first;
+- tree: the inner (non-leaf) boxes of the hierarchy as edges and labels (``tree_`` prefix);
 - diagnostics: a `diagnostic_msgs/DiagnosticStatus` with counts and timings.
 
 All are stamped with the input cloud's header; nothing else is assumed about frames.
+:func:`output_messages` turns one pipeline result into the messages of one cloud; the node
+publishes them and `mvbb bag process` writes them, so both produce the same messages.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any, TYPE_CHECKING
 
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
-from mvbb_ros.box import EDGES, Box
+from mvbb_ros.box import Box, EDGES
 from mvbb_ros.grasps import Grasp
 import numpy as np
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
+
+if TYPE_CHECKING:
+    from mvbb_ros.pipeline import PipelineResult
+    from mvbb_ros.settings import PipelineSettings
 
 #: Distinct box colours (red, green, blue in 0..1), cycled by box index.
 PALETTE: tuple[tuple[float, float, float], ...] = (
@@ -37,6 +45,8 @@ PALETTE: tuple[tuple[float, float, float], ...] = (
     (0.74, 0.74, 0.13),
     (0.09, 0.75, 0.81),
 )
+#: The outputs of one cloud: topic suffix (below the node's namespace) -> message class.
+OUTPUT_TYPES: dict[str, type] = {'boxes': MarkerArray, 'tree': MarkerArray, 'grasps': PoseArray}
 #: RViz does not draw a CUBE with a zero scale; flat boxes get this thickness (metres).
 MIN_MARKER_SCALE = 1e-4
 
@@ -139,3 +149,37 @@ def diagnostic_status(
         hardware_id='',
         values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
     )
+
+
+def output_messages(
+    result: PipelineResult | None, header: Header, settings: PipelineSettings
+) -> dict[str, Any]:
+    """
+    Return the output messages of one cloud, by topic suffix (see :data:`OUTPUT_TYPES`).
+
+    The node publishes them on ``~/<suffix>`` and `mvbb bag process` writes them, so what a bag
+    gives offline is what the node publishes live. Without a decomposition (`result` None after
+    a failure, or a result with a warning) the messages are cleared: a lone DELETEALL and an
+    empty PoseArray.
+
+    :param result: the pipeline result, or None when processing failed.
+    :param header: the input cloud's header; every message is stamped with it.
+    :param settings: the settings in force (``publish_tree`` adds the ``tree`` message).
+    :return: ``boxes`` and ``grasps``, and ``tree`` when ``settings.publish_tree``, in
+        publication order.
+    """
+    decomposition = None if result is None else result.decomposition
+    leaves = [] if decomposition is None else list(decomposition.leaves)
+    counts = [] if decomposition is None else decomposition.leaf_point_indices
+    labels = [f'{i}: {len(indices)} pts' for i, indices in enumerate(counts)]
+    outputs: dict[str, Any] = {'boxes': box_markers(leaves, header, labels=labels)}
+    if settings.publish_tree:
+        inner = (
+            []
+            if decomposition is None
+            else [node.box for node in decomposition.nodes if not node.is_leaf]
+        )
+        outputs['tree'] = box_markers(inner, header, namespace_prefix='tree_', fill_alpha=0.0)
+    grasps = [] if result is None else result.grasps
+    outputs['grasps'] = grasp_pose_array(grasps, header)
+    return outputs
