@@ -10,7 +10,16 @@ in Robot Grasping", ICRA 2008.
 """
 
 from mvbb_ros.box import Box
+from mvbb_ros.decomposition import decompose, Decomposition
+from mvbb_ros.grasps import Grasp, grasp_hypotheses
 from mvbb_ros.mvbb import minimum_bounding_box
 
-__all__ = ['Box', 'minimum_bounding_box']
+__all__ = [
+    'Box',
+    'Decomposition',
+    'Grasp',
+    'decompose',
+    'grasp_hypotheses',
+    'minimum_bounding_box',
+]
 __version__ = '0.1.0'

@@ -1,0 +1,343 @@
+"""
+Benchmark the fit-and-split decomposition and compare it with the paper's Table I.
+
+Run from the repository root (the shared data folder must be beside it, or set
+MVBB_SHARED_DATA)::
+
+    .venv/bin/python benchmarks/decompose.py                  # models: Table I, times
+    .venv/bin/python benchmarks/decompose.py --scans          # and the real scans
+    .venv/bin/python benchmarks/decompose.py --surface        # and surface samples
+    .venv/bin/python benchmarks/decompose.py --sweep grid_cells
+    .venv/bin/python benchmarks/decompose.py --sweep min_points
+    .venv/bin/python benchmarks/decompose.py --sweep order
+
+The model table gives, per model and gain threshold t, our box count next to the paper's
+(Huebner et al. 2008, Table I), the total leaf volume over the root volume and the median time
+of ``--repeats`` runs, for the paper's algorithm (``default``) and for each option beyond it:
+``volume`` (3D split measure) and ``rescore`` (the best ``RESCORE_CUTS`` cuts re-scored by real
+box fits). The scan table gives the counts and volume ratios on every cloud in
+``scans/``. The header names the MVBB implementation used (first docstring line and git blob
+hash of ``mvbb_ros/mvbb.py``), because the box counts depend on it.
+
+Units: the GraspIt! mug is in millimetres, the bunny and the scans in metres, Homer is
+unitless. Nothing here is metric: theta and Theta* are ratios, the grid is relative to each box
+and ``min_points`` is a count; the volume ratio is dimensionless.
+
+Sweeps (how the defaults were chosen; see the report in the module docstrings):
+
+* ``grid_cells``: box counts on the models and the mean leaf/root volume on the scans at
+  t = 0.94 and 0.98 for several grid sizes, with the time per decomposition.
+* ``min_points``: scans with 0.5 % added outliers (half scattered in the box grown by 30 %, half
+  in three tight clumps): the share of outliers and of real points dropped, per value.
+* ``order``: Table I counts for each processing order.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+import hashlib
+import os
+from pathlib import Path
+import statistics
+import sys
+import time
+
+from mvbb_ros import decomposition
+from mvbb_ros import mvbb as mvbb_module
+from mvbb_ros.decomposition import decompose
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO_ROOT.parent / 'shared' / 'data'))
+THRESHOLDS = (0.90, 0.94, 0.98)
+#: The paper's Table I box counts at t = 0.90, 0.94, 0.98 (vertex models).
+PAPER_TABLE = {
+    'bunny': (2, 4, 11),
+    'graspit_mug': (2, 3, 5),
+    'homer': (4, 5, 7),
+}
+PAPER_NAMES = {'bunny': 'Bunny', 'graspit_mug': 'Mug (mm)', 'homer': 'Homer'}
+#: Number of cuts the ``rescore`` option re-scores with real box fits.
+RESCORE_CUTS = 4
+VARIANTS: dict[str, dict[str, object]] = {
+    'default': {},
+    'volume': {'split_measure': 'volume'},
+    'rescore': {'rescore_cuts': RESCORE_CUTS},
+}
+
+
+def mvbb_identity() -> str:
+    """Name the MVBB implementation: first docstring line and git blob hash of mvbb.py."""
+    path = Path(mvbb_module.__file__)
+    data = path.read_bytes()
+    blob = hashlib.sha1(b'blob %d\0' % len(data) + data).hexdigest()[:12]
+    summary = (mvbb_module.__doc__ or '').strip().splitlines()[0]
+    return f'{summary} (mvbb.py blob {blob})'
+
+
+def load(*relative: str) -> np.ndarray:
+    path = SHARED_DATA.joinpath(*relative)
+    if not path.exists():
+        sys.exit(f'shared data not found: {path} (set MVBB_SHARED_DATA to its folder)')
+    return np.load(path)
+
+
+def timed(
+    function: Callable[[], decomposition.Decomposition], repeats: int
+) -> tuple[decomposition.Decomposition, float]:
+    """Run `function` `repeats` times; return the last result and the median seconds."""
+    seconds = []
+    result = None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function()
+        seconds.append(time.perf_counter() - start)
+    return result, statistics.median(seconds)
+
+
+def model_table(repeats: int, variants: Sequence[str], sample: str = 'vertices') -> None:
+    title = (
+        'Table I (paper) next to ours'
+        if sample == 'vertices'
+        else (f'the same meshes, {sample} points (diagnostic; the paper used the vertices)')
+    )
+    print(f'\n## Models: {title}\n')
+    print('boxes ours/paper, leaf volume / root volume, median time of', repeats, 'runs\n')
+    header = '| model | points | variant | ' + ' | '.join(f't = {t:.2f}' for t in THRESHOLDS)
+    print(header + ' |')
+    print('|' + '---|' * (3 + len(THRESHOLDS)))
+    for model, paper in PAPER_TABLE.items():
+        points = load('models', f'{model}_{sample}.npy')
+        for variant in variants:
+            cells = []
+            for threshold, paper_count in zip(THRESHOLDS, paper, strict=True):
+                options = {'gain_threshold': threshold, **VARIANTS[variant]}
+                result, seconds = timed(
+                    lambda points=points, options=options: decompose(points, **options),
+                    repeats,
+                )
+                cells.append(
+                    f'{len(result.leaves)}/{paper_count}, {result.volume_ratio:.2f}, '
+                    f'{seconds * 1e3:.0f} ms'
+                )
+            name = PAPER_NAMES[model]
+            print(f'| {name} | {len(points)} | {variant} | ' + ' | '.join(cells) + ' |')
+
+
+def time_breakdown() -> None:
+    """Split the default's time into MVBB fits and the rest (cut search, tree, Theta*)."""
+    print('\n## Where the time goes (default, one run each)\n')
+    print('| model | t | box fits | time in fits | rest (cuts, tree) | total |')
+    print('|---|---|---|---|---|---|')
+    fit = decomposition.minimum_bounding_box
+    spent = {'calls': 0, 'seconds': 0.0}
+
+    def timed_fit(points: np.ndarray, *, seed: int = 0) -> object:
+        start = time.perf_counter()
+        try:
+            return fit(points, seed=seed)
+        finally:
+            spent['calls'] += 1
+            spent['seconds'] += time.perf_counter() - start
+
+    decomposition.minimum_bounding_box = timed_fit
+    try:
+        for model in PAPER_TABLE:
+            points = load('models', f'{model}_vertices.npy')
+            for threshold in THRESHOLDS:
+                spent.update(calls=0, seconds=0.0)
+                start = time.perf_counter()
+                decompose(points, gain_threshold=threshold)
+                total = time.perf_counter() - start
+                fits, rest = spent['seconds'] * 1e3, (total - spent['seconds']) * 1e3
+                print(
+                    f'| {PAPER_NAMES[model]} | {threshold:.2f} | {spent["calls"]} '
+                    f'| {fits:.0f} ms | {rest:.0f} ms | {total * 1e3:.0f} ms |'
+                )
+    finally:
+        decomposition.minimum_bounding_box = fit
+
+
+def scan_files() -> list[Path]:
+    folder = SHARED_DATA / 'scans'
+    if not folder.exists():
+        sys.exit(f'shared data not found: {folder} (set MVBB_SHARED_DATA to its folder)')
+    return sorted(folder.glob('*.npy'))
+
+
+def scan_table(variants: Sequence[str]) -> None:
+    print('\n## Real scans: boxes, leaf volume / root volume\n')
+    columns = [f'{variant} t={t:.2f}' for variant in variants for t in THRESHOLDS]
+    print('| scan | points | ' + ' | '.join(columns) + ' |')
+    print('|' + '---|' * (2 + len(columns)))
+    totals: dict[str, list[tuple[int, float, float]]] = {column: [] for column in columns}
+    for path in scan_files():
+        points = np.load(path)
+        cells = []
+        for variant in variants:
+            for threshold in THRESHOLDS:
+                start = time.perf_counter()
+                result = decompose(points, gain_threshold=threshold, **VARIANTS[variant])
+                seconds = time.perf_counter() - start
+                cells.append(f'{len(result.leaves)}, {result.volume_ratio:.2f}')
+                totals[f'{variant} t={threshold:.2f}'].append(
+                    (len(result.leaves), result.volume_ratio, seconds)
+                )
+        print(f'| {path.stem} | {len(points)} | ' + ' | '.join(cells) + ' |')
+    summary = []
+    for column in columns:
+        counts, ratios, seconds = zip(*totals[column], strict=True)
+        median_ms = statistics.median(seconds) * 1e3
+        summary.append(f'{np.mean(counts):.1f}, {np.mean(ratios):.2f} ({median_ms:.0f} ms)')
+    print('| **mean (median time)** | | ' + ' | '.join(summary) + ' |')
+
+    # Equal budget: the same number of boxes for every variant, so the volumes compare directly.
+    budget = 4
+    print(f'\nSame budget, t = 1.0 and max_boxes = {budget}: mean leaf volume / root volume\n')
+    print('| ' + ' | '.join(variants) + ' |')
+    print('|' + '---|' * len(variants))
+    ratios = {variant: [] for variant in variants}
+    for path in scan_files():
+        points = np.load(path)
+        for variant in variants:
+            result = decompose(points, gain_threshold=1.0, max_boxes=budget, **VARIANTS[variant])
+            ratios[variant].append(result.volume_ratio)
+    print('| ' + ' | '.join(f'{np.mean(ratios[variant]):.3f}' for variant in variants) + ' |')
+
+
+def sweep_grid_cells() -> None:
+    print('\n## Sweep: grid cells per axis\n')
+    print(
+        '| cells | Bunny | Mug | Homer | scans t=0.94 boxes, vol | scans t=0.98 boxes, vol | '
+        'median time |'
+    )
+    print('|---|---|---|---|---|---|---|')
+    models = {model: load('models', f'{model}_vertices.npy') for model in PAPER_TABLE}
+    scans = [np.load(path) for path in scan_files()[::3]]
+    for cells in (8, 16, 32, 64, 128, 256):
+        row = [str(cells)]
+        seconds = []
+        for points in models.values():
+            counts = []
+            for threshold in THRESHOLDS:
+                start = time.perf_counter()
+                counts.append(
+                    len(decompose(points, gain_threshold=threshold, grid_cells=cells).leaves)
+                )
+                seconds.append(time.perf_counter() - start)
+            row.append('/'.join(map(str, counts)))
+        for threshold in (0.94, 0.98):
+            results = [
+                decompose(points, gain_threshold=threshold, grid_cells=cells) for points in scans
+            ]
+            row.append(
+                f'{np.mean([len(r.leaves) for r in results]):.1f}, '
+                f'{np.mean([r.volume_ratio for r in results]):.3f}'
+            )
+        row.append(f'{statistics.median(seconds) * 1e3:.0f} ms')
+        print('| ' + ' | '.join(row) + ' |', flush=True)
+
+
+def with_outliers(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Add 0.5 % outliers: half scattered in the box grown by 30 %, half in three clumps."""
+    low, high = points.min(axis=0), points.max(axis=0)
+    pad = 0.3 * (high - low)
+    count = max(6, len(points) // 200)
+    scattered = rng.uniform(low - pad, high + pad, (count // 2, 3))
+    clump_size = max(1, (count - count // 2) // 3)
+    spread = 0.01 * float(np.max(high - low))
+    clumps = [
+        rng.normal(rng.uniform(low - pad, high + pad), spread, (clump_size, 3)) for _ in range(3)
+    ]
+    return np.vstack([points, scattered, *clumps])
+
+
+def sweep_min_points() -> None:
+    print('\n## Sweep: min_points on scans with 0.5 % added outliers (t = 0.94)\n')
+    print(
+        '| min_points | outliers dropped (mean, min) | real points dropped (mean, max) | '
+        'boxes | leaf/root |'
+    )
+    print('|---|---|---|---|---|')
+    rng = np.random.default_rng(0)
+    clouds = [
+        (len(points), with_outliers(points, rng))
+        for points in (np.load(path) for path in scan_files()[::3])
+    ]
+    for min_points in (1, 4, 10, 20, 40):
+        outliers, inliers, boxes, ratios = [], [], [], []
+        for count, noisy in clouds:
+            result = decompose(noisy, gain_threshold=0.94, min_points=min_points)
+            dropped = result.dropped_point_indices
+            outliers.append(np.count_nonzero(dropped >= count) / (len(noisy) - count))
+            inliers.append(np.count_nonzero(dropped < count) / count)
+            boxes.append(len(result.leaves))
+            ratios.append(result.volume_ratio)
+        print(
+            f'| {min_points} | {100 * np.mean(outliers):.1f} %, {100 * np.min(outliers):.1f} % '
+            f'| {100 * np.mean(inliers):.3f} %, {100 * np.max(inliers):.3f} % '
+            f'| {np.mean(boxes):.1f} | {np.mean(ratios):.3f} |',
+            flush=True,
+        )
+
+
+def sweep_order() -> None:
+    print('\n## Sweep: processing order (Table I counts at t = 0.90/0.94/0.98)\n')
+    print('| order | Bunny (2/4/11) | Mug (2/3/5) | Homer (4/5/7) |')
+    print('|---|---|---|---|')
+    models = {model: load('models', f'{model}_vertices.npy') for model in PAPER_TABLE}
+    for order in decomposition.ORDERS:
+        row = [order]
+        for points in models.values():
+            counts = [
+                len(decompose(points, gain_threshold=t, order=order).leaves) for t in THRESHOLDS
+            ]
+            row.append('/'.join(map(str, counts)))
+        print('| ' + ' | '.join(row) + ' |', flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    parser.add_argument('--repeats', type=int, default=5, help='runs per timing (median)')
+    parser.add_argument(
+        '--variants',
+        default=','.join(VARIANTS),
+        help=f'comma-separated subset of {",".join(VARIANTS)}',
+    )
+    parser.add_argument('--scans', action='store_true', help='also the table on the real scans')
+    parser.add_argument('--no-models', action='store_true', help='skip the model table')
+    parser.add_argument(
+        '--surface',
+        action='store_true',
+        help='also the model table on uniform surface samples of the same meshes (surface5k)',
+    )
+    parser.add_argument(
+        '--sweep',
+        choices=['grid_cells', 'min_points', 'order'],
+        help='run a design sweep instead of the tables',
+    )
+    args = parser.parse_args(argv)
+    variants = [name for name in args.variants.split(',') if name]
+    unknown = sorted(set(variants) - set(VARIANTS))
+    if unknown:
+        parser.error(f'unknown variants {unknown}; choose from {sorted(VARIANTS)}')
+    print(f'MVBB: {mvbb_identity()}')
+    print(f'numpy {np.__version__}, Python {sys.version.split()[0]}')
+    if args.sweep:
+        {'grid_cells': sweep_grid_cells, 'min_points': sweep_min_points, 'order': sweep_order}[
+            args.sweep
+        ]()
+        return 0
+    if not args.no_models:
+        model_table(args.repeats, variants)
+        time_breakdown()
+    if args.surface:
+        model_table(args.repeats, variants, sample='surface5k')
+    if args.scans:
+        scan_table(variants)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
