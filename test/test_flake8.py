@@ -1,11 +1,10 @@
 """The ROS 2 package template's flake8 check (ament_flake8 with its default configuration)."""
 
 from ament_flake8.main import main_with_errors
+from conftest import REPO_ROOT
 import pytest
 
-from conftest import REPO_ROOT
-
-CHECKED = ['mvbb_ros', 'test', 'benchmarks', 'setup.py']
+CHECKED = ['mvbb_ros', 'test', 'benchmarks', 'tools', 'setup.py']
 
 
 @pytest.mark.flake8
@@ -13,4 +12,4 @@ CHECKED = ['mvbb_ros', 'test', 'benchmarks', 'setup.py']
 def test_flake8(monkeypatch):
     monkeypatch.chdir(REPO_ROOT)
     rc, errors = main_with_errors(argv=CHECKED)
-    assert rc == 0, 'Found %d code style errors / warnings:\n' % len(errors) + '\n'.join(errors)
+    assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + '\n'.join(errors)

@@ -19,17 +19,10 @@ from types import SimpleNamespace
 from typing import Any
 
 from conftest import require_shared_data
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import event, given, HealthCheck, settings
 from hypothesis import strategies as st
+from mvbb_ros import pointcloud2
 from mvbb_ros.pointcloud2 import (
-    FLOAT32,
-    FLOAT64,
-    INT8,
-    INT16,
-    INT32,
-    UINT8,
-    UINT16,
-    UINT32,
     CloudFormatError,
     create_cloud_xyz,
     read_xyz,
@@ -40,6 +33,19 @@ from mvbb_ros.pointcloud2 import (
 import numpy as np
 import pytest
 
+# PointField datatypes (taken through the module: ruff and flake8 sort INT8/INT16 differently).
+INT8, UINT8, INT16, UINT16 = (
+    pointcloud2.INT8,
+    pointcloud2.UINT8,
+    pointcloud2.INT16,
+    pointcloud2.UINT16,
+)
+INT32, UINT32, FLOAT32, FLOAT64 = (
+    pointcloud2.INT32,
+    pointcloud2.UINT32,
+    pointcloud2.FLOAT32,
+    pointcloud2.FLOAT64,
+)
 ALL_DATATYPES = (INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64)
 FLOAT_DATATYPES = (FLOAT32, FLOAT64)
 STRUCT_FORMATS = {
@@ -196,7 +202,7 @@ _TYPESTORE = None
 def typestore() -> Any:
     global _TYPESTORE
     if _TYPESTORE is None:
-        from rosbags.typesys import Stores, get_typestore
+        from rosbags.typesys import get_typestore, Stores
 
         _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
     return _TYPESTORE
@@ -804,7 +810,8 @@ def test_create_cloud_xyz_layout_options_match_the_reference_decoder(
     np.testing.assert_array_equal(decode_reference(message, skip_nonfinite=False), expected)
     np.testing.assert_array_equal(read_xyz(message), expected[np.isfinite(expected).all(axis=1)])
     if point_step:
-        padding = np.frombuffer(message.data, np.uint8).reshape(6, point_step)[:, 3 * size :]
+        xyz_bytes = 3 * size
+        padding = np.frombuffer(message.data, np.uint8).reshape(6, point_step)[:, xyz_bytes:]
         assert not padding.any()
 
 
@@ -946,7 +953,7 @@ def test_conversion_between_rclpy_and_rosbags_through_each_others_serializer():
 
 
 def test_conversion_to_a_ros1_typestore():
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import get_typestore, Stores
 
     store = get_typestore(Stores.ROS1_NOETIC)
     message = create_cloud_xyz(np.arange(12.0).reshape(4, 3), frame_id='old')

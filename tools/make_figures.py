@@ -1,0 +1,143 @@
+"""
+Regenerate the pictures under docs/ from the shared models and the project's own code.
+
+    .venv/bin/python tools/make_figures.py [--shared ../shared/data] [--out docs]
+
+- bunny_thresholds.png: the Stanford Bunny's vertices decomposed at t = 0.90, 0.94, 0.98;
+- grasps_mug.png, grasps_bunny.png: the ranked grasp hypotheses on the mug and the bunny;
+- grasp_convention.png: which gripper axis approaches and which closes.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from mvbb_ros.atomic import atomic_path
+from mvbb_ros.box import Box, EDGES
+from mvbb_ros.decomposition import decompose
+from mvbb_ros.grasps import grasp_hypotheses
+from mvbb_ros.render import Panel, render_panels
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+THRESHOLDS = (0.90, 0.94, 0.98)
+#: The GraspIt! mug is in millimetres: gripper width and standoff scaled to it.
+MUG_SCALE = 1000.0
+
+
+def bunny_thresholds(models: Path, out: Path) -> None:
+    """Draw the Bunny's decomposition at the paper's three thresholds, one row each."""
+    points = np.load(models / 'bunny_vertices.npy').astype(np.float64)
+    panels = []
+    for threshold in THRESHOLDS:
+        decomposition = decompose(points, gain_threshold=threshold)
+        count = len(decomposition.leaves)
+        panels.append(
+            Panel(points, decomposition.leaves, title=f't = {threshold:.2f}: {count} boxes')
+        )
+    render_panels(out / 'bunny_thresholds.png', panels, title='Stanford Bunny (35,947 vertices)')
+
+
+def grasps_on(points: np.ndarray, scale: float, name: str, out: Path, unit: str) -> None:
+    """Draw the t = 0.94 boxes and best grasps; `scale` converts metres to the model's unit."""
+    decomposition = decompose(points, gain_threshold=0.94)
+    grasps = grasp_hypotheses(decomposition, gripper_max_width=0.08 * scale, standoff=0.05 * scale)
+    title = f'{name}: t = 0.94, {len(decomposition.leaves)} boxes, {len(grasps)} grasps (best 8)'
+    render_panels(
+        out / f'grasps_{name.lower()}.png',
+        [Panel(points, decomposition.leaves, grasps=grasps, title=title)],
+        unit=unit,
+    )
+
+
+def _arrow(
+    axes: object, origin: np.ndarray, direction: np.ndarray, color: str, label: str
+) -> None:
+    axes.quiver(*origin, *direction, color=color, linewidth=2.5, arrow_length_ratio=0.15)
+    tip = origin + 1.3 * direction
+    axes.text(*tip, label, color=color, fontsize=11, ha='left', fontweight='bold')
+
+
+def grasp_convention(out: Path) -> None:
+    """Draw a box, one grasp on its top face and the gripper axes for both conventions."""
+    box = Box(center=[0.0, 0.0, 0.0], rotation=np.eye(3), extents=[0.06, 0.04, 0.1])
+    grasps = grasp_hypotheses([box], gripper_max_width=0.08, standoff=0.05)
+    top = next(g for g in grasps if g.face == 4 and g.roll_deg == 0)
+    figure = Figure(figsize=(10.0, 5.0))
+    FigureCanvasAgg(figure)
+    for column, axis_name in enumerate(('z', 'x')):
+        grasp = next(
+            g
+            for g in grasp_hypotheses([box], approach_axis=axis_name, standoff=0.05)
+            if g.face == top.face and g.roll_deg == 0
+        )
+        axes = figure.add_subplot(1, 2, column + 1, projection='3d')
+        corners = box.corners()
+        for i, j in EDGES:
+            axes.plot(*corners[[i, j]].T, color='0.35', linewidth=1.2)
+        rotation = grasp.rotation
+        length = 0.045
+        names = ('x', 'y', 'z')
+        colors = ('tab:red', 'tab:green', 'tab:blue')
+        for k in range(3):
+            role = ''
+            if np.allclose(rotation[:, k], grasp.approach):
+                role = ' = approach'
+            elif np.allclose(rotation[:, k], grasp.closing):
+                role = ' = closing'
+            _arrow(axes, grasp.position, length * rotation[:, k], colors[k], f'{names[k]}{role}')
+        face_center = box.face_centers()[grasp.face]
+        for sign in (-1.0, 1.0):
+            finger = face_center + sign * grasp.width / 2 * grasp.closing
+            axes.plot(
+                *np.stack([finger - 0.02 * grasp.approach, finger]).T, color='k', linewidth=4
+            )
+        axes.scatter(*grasp.position, color='k', s=20)
+        axes.set_title(f"approach_axis='{axis_name}'" + (' (default)' if axis_name == 'z' else ''))
+        axes.set_box_aspect((1, 1, 1))
+        axes.set_xlim(-0.06, 0.06)
+        axes.set_ylim(-0.06, 0.06)
+        axes.set_zlim(-0.02, 0.1)
+        axes.view_init(elev=18, azim=-70)
+        axes.set_axis_off()
+        axes.set_xticks([])
+        axes.set_yticks([])
+        axes.set_zticks([])
+    figure.suptitle(
+        'Grasp pose on the top face: position = face centre + standoff x normal, '
+        'approach = -normal, fingers (black) close across the face',
+        fontsize=9,
+    )
+    figure.tight_layout()
+    with atomic_path(out / 'grasp_convention.png') as tmp:
+        figure.savefig(tmp, format='png', dpi=110)
+
+
+def main() -> int:
+    """Write every figure; return the exit code."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--shared', type=Path, default=REPO_ROOT.parent / 'shared' / 'data')
+    parser.add_argument('--out', type=Path, default=REPO_ROOT / 'docs')
+    args = parser.parse_args()
+    models = args.shared / 'models'
+    if not models.is_dir():
+        print(f'shared models not found in {models}', file=sys.stderr)
+        return 1
+    args.out.mkdir(parents=True, exist_ok=True)
+    grasp_convention(args.out)
+    bunny_thresholds(models, args.out)
+    bunny = np.load(models / 'bunny_vertices.npy').astype(np.float64)
+    grasps_on(bunny, 1.0, 'Bunny', args.out, unit='m')
+    mug = np.load(models / 'graspit_mug_vertices.npy').astype(np.float64)
+    grasps_on(mug, MUG_SCALE, 'Mug', args.out, unit='mm')
+    for name in ('grasp_convention', 'bunny_thresholds', 'grasps_bunny', 'grasps_mug'):
+        print(f'wrote {args.out / name}.png')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
