@@ -2,11 +2,13 @@
 Soak test: stream 300k-point clouds at 30 Hz into the decomposer for a number of minutes.
 
 Starts the installed `decomposer` as its own process (so its memory is its own), publishes
-organized depth frames of a synthetic object, listens to ~/grasps, and reports clouds sent,
-answered and dropped, latency percentiles (publish to grasps received, matched by stamp) and
-the node's resident memory over time.
+organized depth frames of a synthetic object (or a given .npy cloud), listens to ~/boxes, and
+reports clouds sent, answered and dropped, latency percentiles (publish to the boxes received,
+matched by stamp) and the node's resident memory over time.
 
     .venv/bin/python benchmarks/soak.py --minutes 10
+    .venv/bin/python benchmarks/soak.py --cloud ../shared/data/models/bunny_vertices.npy \
+        --rate 2 --minutes 0.5        # latency of one cloud at a time
 """
 
 from __future__ import annotations
@@ -30,33 +32,44 @@ def main() -> int:
     parser.add_argument('--rate', type=float, default=30.0, help='clouds per second (30)')
     parser.add_argument('--points', type=int, default=300_000, help='points per cloud (300k)')
     parser.add_argument('--memory-every', type=float, default=30.0, help='RSS sample period, s')
+    parser.add_argument(
+        '--cloud',
+        type=Path,
+        help='a .npy (N, 3) cloud in metres instead of the synthetic 300k-point frame',
+    )
     args = parser.parse_args()
 
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-    from geometry_msgs.msg import PoseArray
     from mvbb_ros.pointcloud2 import create_cloud_xyz
     from mvbb_ros.synthetic import organized_frame
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import MarkerArray
 
     frames = []
-    for seed in range(4):
-        grid = organized_frame(args.points, seed=seed)
-        frames.append(
-            create_cloud_xyz(
-                grid.reshape(-1, 3),
-                organized_shape=grid.shape[:2],
-                frame_id='camera_optical_frame',
+    if args.cloud is not None:
+        points = np.load(args.cloud)
+        frames.append(create_cloud_xyz(points, frame_id='camera_optical_frame'))
+        print(f'{args.cloud.name}: {len(points)} points', flush=True)
+    else:
+        for seed in range(4):
+            grid = organized_frame(args.points, seed=seed)
+            frames.append(
+                create_cloud_xyz(
+                    grid.reshape(-1, 3),
+                    organized_shape=grid.shape[:2],
+                    frame_id='camera_optical_frame',
+                )
             )
+        finite = int(np.isfinite(grid).all(axis=2).sum())
+        print(
+            f'{len(frames)} frames of {grid.shape[1]}x{grid.shape[0]} '
+            f'({finite} object points each)',
+            flush=True,
         )
-    finite = int(np.isfinite(grid).all(axis=2).sum())
-    print(
-        f'{len(frames)} frames of {grid.shape[1]}x{grid.shape[0]} ({finite} object points each)',
-        flush=True,
-    )
 
     executable = Path(sys.executable).parent / 'decomposer'
     node = subprocess.Popen(
@@ -68,15 +81,16 @@ def main() -> int:
     sent: dict[tuple[int, int], float] = {}
     latencies: list[float] = []
 
-    def on_grasps(message: PoseArray) -> None:
-        key = (message.header.stamp.sec, message.header.stamp.nanosec)
+    def on_boxes(message: MarkerArray) -> None:
+        header = message.markers[0].header
+        key = (header.stamp.sec, header.stamp.nanosec)
         if key in sent:
             latencies.append(time.perf_counter() - sent.pop(key))
 
     reliable = QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
     )
-    client.create_subscription(PoseArray, '/decomposer/grasps', on_grasps, reliable)
+    client.create_subscription(MarkerArray, '/decomposer/boxes', on_boxes, reliable)
     publisher = client.create_publisher(
         PointCloud2,
         'cloud_in',
@@ -133,7 +147,7 @@ def main() -> int:
     if latencies:
         milliseconds = np.array(latencies) * 1e3
         print(
-            f'latency publish -> grasps: p50 {np.percentile(milliseconds, 50):.1f} ms, '
+            f'latency publish -> boxes: p50 {np.percentile(milliseconds, 50):.1f} ms, '
             f'p99 {np.percentile(milliseconds, 99):.1f} ms, max {milliseconds.max():.1f} ms'
         )
     print('node resident memory (MiB) over time:')
