@@ -16,7 +16,7 @@ from mvbb_ros.box import Box
 from mvbb_ros.decomposition import decompose, Decomposition
 from mvbb_ros.filtering import filter_points, FilterCounts
 from mvbb_ros.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.pointcloud2 import CloudFormatError, read_xyz
+from mvbb_ros.pointcloud2 import CloudFormatError, read_points
 from mvbb_ros.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -58,7 +58,8 @@ def process_points(
     """
     Filter, decompose and grasp finite `points` (N, 3) in metres.
 
-    :param points: finite points of one segmented object, in the sensor frame.
+    :param points: finite points of one segmented object, in the sensor frame (float32 or
+        float64).
     :param settings: the pipeline settings.
     :param timings_ms: step timings measured before this call (decoding), kept in the result.
     :return: the result; empty with a `warning` when too few points remain.
@@ -72,6 +73,7 @@ def process_points(
         outlier_std_ratio=settings.outlier_std_ratio,
         crop_min=settings.crop_min,
         crop_max=settings.crop_max,
+        voxel_backend=settings.voxel_backend,
     )
     timings['filter'] = (time.perf_counter() - start) * 1e3
     if len(filtered) < settings.min_points:
@@ -110,9 +112,14 @@ def process_points(
     )
 
 
-def decode_cloud(cloud: Any) -> NDArray[np.float64]:
-    """Decode a PointCloud2 (rclpy or rosbags message) to finite (N, 3) points."""
-    return read_xyz(cloud)
+def decode_cloud(cloud: Any) -> NDArray[np.floating]:
+    """
+    Decode a PointCloud2 (rclpy or rosbags message) to finite (N, 3) points.
+
+    float32 when the cloud's x, y, z are float32 (no float64 copy of a whole frame: the filter
+    takes float32 as it is), float64 otherwise; see :func:`mvbb_ros.pointcloud2.read_points`.
+    """
+    return read_points(cloud)
 
 
 def process_cloud(cloud: Any, settings: PipelineSettings) -> PipelineResult:

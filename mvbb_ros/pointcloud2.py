@@ -70,6 +70,7 @@ __all__ = [
     'UINT32',
     'CloudFormatError',
     'create_cloud_xyz',
+    'read_points',
     'read_xyz',
     'read_xyz_grid',
     'to_rclpy_cloud',
@@ -269,50 +270,18 @@ def read_xyz_grid(cloud: Any) -> np.ndarray:
     """
     Decode x, y, z of every point, keeping the organized structure and non-finite points.
 
-    Args:
-        cloud: a sensor_msgs/PointCloud2 (rclpy message, rosbags message or anything with the
-            same attributes).
-
-    Returns:
-        A new C-contiguous, writable float64 array of shape ``(height, width, 3)`` (``(1, N, 3)``
-        for an unorganized cloud) that does not share memory with the message.
-
-    Raises:
-        CloudFormatError: the cloud breaks the layout rules in the module docstring.
-
+    :param cloud: a sensor_msgs/PointCloud2 (rclpy message, rosbags message or anything with the
+        same attributes).
+    :return: A new C-contiguous, writable float64 array of shape ``(height, width, 3)``
+        (``(1, N, 3)`` for an unorganized cloud) that does not share memory with the message.
+    :raises CloudFormatError: the cloud breaks the layout rules in the module docstring.
     """
-    layout = _check_layout(cloud)
-    data = _data_bytes(_attribute(cloud, 'data'))
-    height, width = layout.height, layout.width
-    if height == 0 or width == 0:
-        return np.empty((height, width, 3), dtype=np.float64)
-    # Checked before allocating: the result is then at most 24 bytes per byte of data (x, y and
-    # z take at least 3 bytes of every point), whatever the header claims.
-    needed = (height - 1) * layout.row_step + width * layout.point_step
-    if data.size < needed:
-        raise CloudFormatError(
-            f'data has {data.size} bytes, but height {height}, width {width}, row_step '
-            f'{layout.row_step} and point_step {layout.point_step} need {needed}'
-        )
-    grid = np.empty((height, width, 3), dtype=np.float64)
-    order = '>' if layout.is_bigendian else '<'
-    # The structured dtype only spans the x/y/z bytes; the strides step over the padding.
-    point_dtype = np.dtype(
-        {
-            'names': [slot.name for slot in layout.xyz],
-            'formats': [order + _DATATYPE_CODES[slot.datatype] for slot in layout.xyz],
-            'offsets': [slot.offset for slot in layout.xyz],
-            'itemsize': max(slot.offset + _field_size(slot.datatype) for slot in layout.xyz),
-        }
-    )
-    points = np.ndarray(
-        shape=(height, width),
-        dtype=point_dtype,
-        buffer=data,
-        strides=(layout.row_step, layout.point_step),
-    )
+    layout, _, view = _xyz_view(cloud)
+    if view is None:
+        return np.empty((layout.height, layout.width, 3), dtype=np.float64)
+    grid = np.empty((layout.height, layout.width, 3), dtype=np.float64)
     for axis, name in enumerate(_XYZ):
-        grid[:, :, axis] = points[name]
+        grid[:, :, axis] = view[name]
     return grid
 
 
@@ -323,18 +292,12 @@ def read_xyz(cloud: Any, *, skip_nonfinite: bool = True) -> np.ndarray:
     Points are returned in row-major order (row 0 first). The result is a new C-contiguous,
     writable array that does not share memory with the message; the message is not modified.
 
-    Args:
-        cloud: a sensor_msgs/PointCloud2 (rclpy message, rosbags message or anything with the
-            same attributes).
-        skip_nonfinite: drop points with NaN or inf in any coordinate, whatever ``is_dense`` says.
-            With False every point is returned (``N == height * width``).
-
-    Returns:
-        The points, float64 of shape ``(N, 3)``; ``(0, 3)`` for a cloud without points.
-
-    Raises:
-        CloudFormatError: the cloud breaks the layout rules in the module docstring.
-
+    :param cloud: a sensor_msgs/PointCloud2 (rclpy message, rosbags message or anything with the
+        same attributes).
+    :param skip_nonfinite: drop points with NaN or inf in any coordinate, whatever ``is_dense``
+        says. With False every point is returned (``N == height * width``).
+    :return: The points, float64 of shape ``(N, 3)``; ``(0, 3)`` for a cloud without points.
+    :raises CloudFormatError: the cloud breaks the layout rules in the module docstring.
     """
     points = read_xyz_grid(cloud).reshape(-1, 3)
     if not skip_nonfinite:
@@ -347,6 +310,111 @@ def read_xyz(cloud: Any, *, skip_nonfinite: bool = True) -> np.ndarray:
     if finite.all():
         return points
     return points.compress(finite, axis=0)
+
+
+def _xyz_view(cloud: Any) -> tuple[_Layout, np.ndarray, np.ndarray | None]:
+    """
+    Check a cloud; return its layout, its data bytes and a structured view of x, y, z.
+
+    The (height, width) view shares the message's buffer (read-only); it is None for a cloud
+    without points.
+    """
+    layout = _check_layout(cloud)
+    data = _data_bytes(_attribute(cloud, 'data'))
+    height, width = layout.height, layout.width
+    if height == 0 or width == 0:
+        return layout, data, None
+    # Checked before anything is allocated: the result is then at most 24 bytes per byte of
+    # data (x, y and z take at least 3 bytes of every point), whatever the header claims.
+    needed = (height - 1) * layout.row_step + width * layout.point_step
+    if data.size < needed:
+        raise CloudFormatError(
+            f'data has {data.size} bytes, but height {height}, width {width}, row_step '
+            f'{layout.row_step} and point_step {layout.point_step} need {needed}'
+        )
+    order = '>' if layout.is_bigendian else '<'
+    # The structured dtype only spans the x/y/z bytes; the strides step over the padding.
+    point_dtype = np.dtype(
+        {
+            'names': [slot.name for slot in layout.xyz],
+            'formats': [order + _DATATYPE_CODES[slot.datatype] for slot in layout.xyz],
+            'offsets': [slot.offset for slot in layout.xyz],
+            'itemsize': max(slot.offset + _field_size(slot.datatype) for slot in layout.xyz),
+        }
+    )
+    view = np.ndarray(
+        shape=(height, width),
+        dtype=point_dtype,
+        buffer=data,
+        strides=(layout.row_step, layout.point_step),
+    )
+    return layout, data, view
+
+
+def _packed_float_view(layout: _Layout, data: np.ndarray) -> np.ndarray | None:
+    """
+    Return an (N, 3) view of x, y, z when they are packed native floats, else None.
+
+    Packed means: one float type for the three, in native byte order, x at some offset, y right
+    after it and z right after y (the layout of nearly every driver), and no row padding, so
+    every point is one row of the flat view. Nothing is copied.
+    """
+    x, y, z = layout.xyz
+    if not (x.datatype == y.datatype == z.datatype and x.datatype in (FLOAT32, FLOAT64)):
+        return None
+    size = _field_size(x.datatype)
+    if y.offset != x.offset + size or z.offset != y.offset + size:
+        return None
+    if layout.is_bigendian == np.little_endian:  # not the machine's byte order
+        return None
+    if layout.height > 1 and layout.row_step != layout.width * layout.point_step:
+        return None
+    return np.ndarray(
+        shape=(layout.height * layout.width, 3),
+        dtype=np.float32 if x.datatype == FLOAT32 else np.float64,
+        buffer=data,
+        offset=x.offset,
+        strides=(layout.point_step, size),
+    )
+
+
+def read_points(cloud: Any) -> np.ndarray:
+    """
+    Decode the finite points of a PointCloud2 into an ``(N, 3)`` array of their own float type.
+
+    The fast path of the pipeline: the same points in the same order as :func:`read_xyz`, but
+    float32 when x, y and z are all FLOAT32 (the common case: no float64 copy of a whole depth
+    frame), float64 otherwise (integer or float64 fields, or a mix). Non-finite points are
+    dropped whatever ``is_dense`` says; the finite test runs once, on the coordinates as they
+    are in the message, and only the finite points are copied out. The result is a new
+    C-contiguous, writable array that does not share memory with the message.
+
+    :param cloud: a sensor_msgs/PointCloud2 (rclpy message, rosbags message or anything with the
+        same attributes).
+    :return: the finite points, ``(N, 3)``; ``(0, 3)`` for a cloud without points.
+    :raises CloudFormatError: the cloud breaks the layout rules in the module docstring.
+    """
+    layout, data, view = _xyz_view(cloud)
+    all_float32 = all(slot.datatype == FLOAT32 for slot in layout.xyz)
+    dtype = np.float32 if all_float32 else np.float64
+    if view is None:
+        return np.empty((0, 3), dtype=dtype)
+    packed = _packed_float_view(layout, data)
+    if packed is not None:
+        columns = (packed[:, 0], packed[:, 1], packed[:, 2])
+    else:
+        columns = tuple(view[name].reshape(-1) for name in _XYZ)
+    # Column by column into one mask, then one gather of the finite rows: several times
+    # faster than np.isfinite(points).all(axis=1) and boolean indexing on (N, 3).
+    finite = np.isfinite(columns[0])
+    finite &= np.isfinite(columns[1])
+    finite &= np.isfinite(columns[2])
+    if packed is not None:
+        return packed.compress(finite, axis=0)
+    points = np.empty((int(np.count_nonzero(finite)), 3), dtype=dtype)
+    for axis, column in enumerate(columns):
+        points[:, axis] = column.compress(finite)
+    return points
 
 
 # --------------------------------------------------------------------------------------------
@@ -398,28 +466,22 @@ def create_cloud_xyz(
     not padded (``row_step == width * point_step``). ``is_dense`` is True when every coordinate
     is finite.
 
-    Args:
-        points: ``(N, 3)`` or organized ``(H, W, 3)`` coordinates.
-        frame_id: the header's frame (not allowed together with ``header``).
-        stamp: the header's stamp: a ``builtin_interfaces`` Time (anything with ``sec`` and
-            ``nanosec``) or an ``rclpy.time.Time``; zero when None (not allowed with ``header``).
-        header: a std_msgs Header (rclpy or rosbags) to copy instead of frame_id/stamp.
-        fields_extra: more fields, name -> values of shape ``(N,)`` or ``(N, count)`` (or
-            ``(H, W)``/``(H, W, count)``), each in one of the eight PointField dtypes.
-        dtype: the dtype of x, y and z: float32, float64 or one of the six integer dtypes (the
-            points must then be integers in its range).
-        organized_shape: ``(H, W)`` for ``(N, 3)`` points with ``N == H * W``; taken from the
-            points when they are ``(H, W, 3)``. Unorganized (``(1, N)``) when None.
-        is_bigendian: write big-endian data.
-        point_step: bytes per point, at least the packed size of the fields.
-
-    Returns:
-        A new rclpy PointCloud2 message.
-
-    Raises:
-        ValueError: inconsistent shapes, unsupported dtypes, bad field names or a point_step
-            smaller than the fields.
-
+    :param points: ``(N, 3)`` or organized ``(H, W, 3)`` coordinates.
+    :param frame_id: the header's frame (not allowed together with ``header``).
+    :param stamp: the header's stamp: a ``builtin_interfaces`` Time (anything with ``sec`` and
+        ``nanosec``) or an ``rclpy.time.Time``; zero when None (not allowed with ``header``).
+    :param header: a std_msgs Header (rclpy or rosbags) to copy instead of frame_id/stamp.
+    :param fields_extra: more fields, name -> values of shape ``(N,)`` or ``(N, count)`` (or
+        ``(H, W)``/``(H, W, count)``), each in one of the eight PointField dtypes.
+    :param dtype: the dtype of x, y and z: float32, float64 or one of the six integer dtypes (the
+        points must then be integers in its range).
+    :param organized_shape: ``(H, W)`` for ``(N, 3)`` points with ``N == H * W``; taken from the
+        points when they are ``(H, W, 3)``. Unorganized (``(1, N)``) when None.
+    :param is_bigendian: write big-endian data.
+    :param point_step: bytes per point, at least the packed size of the fields.
+    :return: A new rclpy PointCloud2 message.
+    :raises ValueError: inconsistent shapes, unsupported dtypes, bad field names or a point_step
+        smaller than the fields.
     """
     from builtin_interfaces.msg import Time
     from std_msgs.msg import Header
@@ -613,12 +675,8 @@ def to_rclpy_cloud(cloud: Any) -> Any:
     """
     Copy any PointCloud2 (for example a rosbags message read from a bag) into rclpy's class.
 
-    Args:
-        cloud: a sensor_msgs/PointCloud2 with the usual attributes.
-
-    Returns:
-        A new ``sensor_msgs.msg.PointCloud2`` with copied data (array.array('B')).
-
+    :param cloud: a sensor_msgs/PointCloud2 with the usual attributes.
+    :return: A new ``sensor_msgs.msg.PointCloud2`` with copied data (array.array('B')).
     """
     from builtin_interfaces.msg import Time
     from sensor_msgs.msg import PointCloud2, PointField
@@ -643,15 +701,11 @@ def to_rosbags_cloud(cloud: Any, typestore: Any) -> Any:
         message = to_rosbags_cloud(create_cloud_xyz(points, frame_id='camera'), typestore)
         writer.write(connection, stamp_ns, typestore.serialize_cdr(message, message.__msgtype__))
 
-    Args:
-        cloud: a sensor_msgs/PointCloud2 with the usual attributes.
-        typestore: a rosbags typestore (``rosbags.typesys.get_typestore(Stores.ROS2_JAZZY)``);
-            ROS 1 typestores work too (their header ``seq`` is copied or set to 0).
-
-    Returns:
-        A new instance of the typestore's ``sensor_msgs/msg/PointCloud2`` with copied data
+    :param cloud: a sensor_msgs/PointCloud2 with the usual attributes.
+    :param typestore: a rosbags typestore (``rosbags.typesys.get_typestore(Stores.ROS2_JAZZY)``);
+        ROS 1 typestores work too (their header ``seq`` is copied or set to 0).
+    :return: A new instance of the typestore's ``sensor_msgs/msg/PointCloud2`` with copied data
         (a numpy uint8 array).
-
     """
     types = typestore.types
     return _copy_cloud(

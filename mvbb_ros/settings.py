@@ -67,12 +67,19 @@ SPECS: tuple[SettingSpec, ...] = (
     SettingSpec(
         'seed', int, 'Random seed of the box fit (results are deterministic).', (0, 2**31 - 1)
     ),
-    # Filtering (Open3D).
+    # Filtering (voxel grid in numpy or Open3D; statistical outliers with Open3D).
     SettingSpec(
         'voxel_size',
         float,
         'Voxel down-sampling edge length in metres; 0 turns it off.',
         (0.0, 10.0),
+    ),
+    SettingSpec(
+        'voxel_backend',
+        str,
+        "Voxel down-sampling implementation: 'numpy' (default, the same centroids as "
+        "Open3D's, computed from the decoded float32 points) or 'open3d'.",
+        choices=('numpy', 'open3d'),
     ),
     SettingSpec(
         'outlier_neighbors',
@@ -166,6 +173,7 @@ class PipelineSettings:
     rescore_cuts: int = 0
     seed: int = 0
     voxel_size: float = 0.005
+    voxel_backend: str = 'numpy'
     outlier_neighbors: int = 20
     outlier_std_ratio: float = 2.0
     crop_min: tuple[float, ...] = ()

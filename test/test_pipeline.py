@@ -1,0 +1,175 @@
+"""The pipeline's fast decoder (read_points) and process_cloud with both voxel back-ends."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from hypothesis import given, HealthCheck, settings
+from hypothesis import strategies as st
+from mvbb_ros.pipeline import decode_cloud, process_cloud
+from mvbb_ros.pointcloud2 import CloudFormatError, create_cloud_xyz, read_points, read_xyz
+from mvbb_ros.settings import PipelineSettings
+import numpy as np
+import pytest
+
+CODES = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
+
+
+def raw_cloud(
+    grid: np.ndarray,
+    datatypes: tuple[int, int, int],
+    offsets: tuple[int, int, int],
+    point_step: int,
+    row_padding: int = 0,
+    is_bigendian: bool = False,
+) -> SimpleNamespace:
+    """Encode an (H, W, 3) grid with any field types, offsets, padding and byte order."""
+    height, width, _ = grid.shape
+    order = '>' if is_bigendian else '<'
+    row_step = width * point_step + row_padding
+    data = np.zeros(height * row_step, dtype=np.uint8)
+    view = np.ndarray(
+        (height, width),
+        dtype=np.dtype(
+            {
+                'names': list('xyz'),
+                'formats': [order + CODES[datatype] for datatype in datatypes],
+                'offsets': list(offsets),
+                'itemsize': point_step,
+            }
+        ),
+        buffer=data,
+        strides=(row_step, point_step),
+    )
+    for axis, name in enumerate('xyz'):
+        view[name] = grid[:, :, axis]
+    fields = [
+        SimpleNamespace(name=name, offset=offset, datatype=datatype, count=1)
+        for name, offset, datatype in zip('xyz', offsets, datatypes, strict=True)
+    ]
+    return SimpleNamespace(
+        header=SimpleNamespace(frame_id='f', stamp=SimpleNamespace(sec=0, nanosec=0)),
+        height=height,
+        width=width,
+        fields=fields,
+        is_bigendian=is_bigendian,
+        point_step=point_step,
+        row_step=row_step,
+        data=data.tobytes(),
+        is_dense=False,
+    )
+
+
+def holed_grid(shape: tuple[int, int], seed: int = 0, fraction: float = 0.3) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    grid = rng.normal(size=(*shape, 3)).astype(np.float32)
+    holes = rng.random(grid.shape) < fraction / 3
+    grid[holes] = rng.choice(np.array([np.nan, np.inf, -np.inf], dtype=np.float32), holes.sum())
+    return grid
+
+
+LAYOUTS = {
+    'packed float32': ((7, 7, 7), (0, 4, 8), 12, 0),
+    'PCL padding 16': ((7, 7, 7), (0, 4, 8), 16, 0),
+    'xyz after rgb': ((7, 7, 7), (4, 8, 12), 20, 0),
+    'row padding': ((7, 7, 7), (0, 4, 8), 16, 12),
+    'float64': ((8, 8, 8), (0, 8, 16), 24, 0),
+    'z before x': ((7, 7, 7), (8, 4, 0), 12, 0),
+    'gap between y and z': ((7, 7, 7), (0, 4, 12), 16, 0),
+    'mixed float32 float64': ((7, 8, 7), (0, 4, 12), 16, 0),
+    'int16 coordinates': ((3, 3, 3), (0, 2, 4), 8, 0),
+}
+
+
+@pytest.mark.parametrize('bigendian', [False, True])
+@pytest.mark.parametrize('name', list(LAYOUTS))
+def test_read_points_equals_read_xyz(name, bigendian):
+    datatypes, offsets, point_step, row_padding = LAYOUTS[name]
+    grid = holed_grid((5, 7))
+    if datatypes[0] == 3:
+        grid = np.nan_to_num(grid * 100, nan=0, posinf=0, neginf=0).round()
+    cloud = raw_cloud(grid, datatypes, offsets, point_step, row_padding, bigendian)
+    before = bytes(cloud.data)
+
+    points = read_points(cloud)
+
+    np.testing.assert_array_equal(points, read_xyz(cloud))
+    expected = np.float32 if datatypes == (7, 7, 7) else np.float64
+    assert points.dtype == expected
+    assert points.flags.c_contiguous and points.flags.writeable
+    assert not np.shares_memory(points, np.frombuffer(cloud.data, dtype=np.uint8))
+    assert bytes(cloud.data) == before
+
+
+def test_read_points_on_rclpy_messages_and_empty_clouds():
+    grid = holed_grid((30, 40), seed=1)
+    cloud = create_cloud_xyz(grid.reshape(-1, 3), organized_shape=grid.shape[:2])
+    np.testing.assert_array_equal(read_points(cloud), read_xyz(cloud))
+    assert decode_cloud(cloud).dtype == np.float32
+    empty = create_cloud_xyz(np.empty((0, 3)))
+    assert read_points(empty).shape == (0, 3)
+    assert read_points(raw_cloud(np.empty((0, 4, 3)), (8, 8, 8), (0, 8, 16), 24)).dtype == (
+        np.float64
+    )
+
+
+def test_read_points_rejects_what_read_xyz_rejects():
+    cloud = raw_cloud(holed_grid((2, 3)), (7, 7, 7), (0, 4, 8), 16)
+    short = SimpleNamespace(**{**vars(cloud), 'data': cloud.data[:-1]})
+    no_z = SimpleNamespace(**{**vars(cloud), 'fields': cloud.fields[:2]})
+    for broken, pattern in ((short, 'data has'), (no_z, 'no field')):
+        with pytest.raises(CloudFormatError, match=pattern):
+            read_xyz(broken)
+        with pytest.raises(CloudFormatError, match=pattern):
+            read_points(broken)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.sampled_from(list(LAYOUTS)),
+    st.booleans(),
+    st.integers(0, 4),
+    st.integers(1, 9),
+    st.sampled_from([0.0, 0.5, 1.0]),
+    st.integers(0, 2**16),
+)
+def test_property_read_points_equals_read_xyz(name, bigendian, height, width, holes, seed):
+    datatypes, offsets, point_step, row_padding = LAYOUTS[name]
+    grid = holed_grid((height, width), seed=seed, fraction=holes)
+    if datatypes[0] == 3:
+        grid = np.nan_to_num(grid * 100, nan=0, posinf=0, neginf=0).round()
+    cloud = raw_cloud(grid, datatypes, offsets, point_step, row_padding, bigendian)
+    points = read_points(cloud)
+    np.testing.assert_array_equal(points, read_xyz(cloud))
+    assert points.shape[1] == 3 and np.isfinite(points).all()
+
+
+def l_shape(count: int = 40_000, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    arm = rng.uniform((0.0, 0.0, 0.0), (0.20, 0.04, 0.04), size=(count // 2, 3))
+    leg = rng.uniform((0.0, 0.0, 0.0), (0.04, 0.16, 0.04), size=(count - count // 2, 3))
+    points = np.concatenate([arm, leg]) + (0.0, 0.0, 0.8)
+    return points.astype(np.float32)
+
+
+def test_both_voxel_backends_give_the_same_boxes():
+    cloud = create_cloud_xyz(l_shape(), frame_id='camera')
+    ours = process_cloud(cloud, PipelineSettings())
+    theirs = process_cloud(cloud, PipelineSettings().updated({'voxel_backend': 'open3d'}))
+
+    assert ours.warning is None and theirs.warning is None
+    assert ours.counts == theirs.counts
+    assert len(ours.leaves) == len(theirs.leaves) == 2
+    for mine, other in zip(
+        sorted(ours.leaves, key=lambda box: box.volume),
+        sorted(theirs.leaves, key=lambda box: box.volume),
+        strict=True,
+    ):
+        assert mine.volume == pytest.approx(other.volume, rel=1e-6)
+        np.testing.assert_allclose(mine.center, other.center, atol=1e-6)
+    assert set(ours.timings_ms) == {'decode', 'filter', 'decompose', 'grasps'}
+
+
+def test_voxel_backend_setting_is_validated():
+    with pytest.raises(ValueError, match='voxel_backend'):
+        PipelineSettings().updated({'voxel_backend': 'pcl'})
