@@ -110,12 +110,10 @@ def box_markers(
             cube.color = _color(index, fill_alpha)
             array.markers.append(cube)
         edges = _marker(header, f'{namespace_prefix}edges', index, Marker.LINE_LIST)
-        corners = box.corners()
-        edges.points = [
-            Point(x=float(corners[k, 0]), y=float(corners[k, 1]), z=float(corners[k, 2]))
-            for edge in EDGES
-            for k in edge
-        ]
+        # Eight Points per box, each listed by the (two or three) edges that meet there: the
+        # same serialized message as 24 separate Points, for a third of the construction cost.
+        corners = [Point(x=x, y=y, z=z) for x, y, z in box.corners().tolist()]
+        edges.points = [corners[k] for edge in EDGES for k in edge]
         edges.scale.x = width
         edges.color = _color(index, 1.0)
         array.markers.append(edges)
