@@ -22,6 +22,12 @@ box of its hull) and uses exact 2D steps to make each one cheap and vectorised:
   searched, and the polish resumes from any better box it finds.
 * The final box encloses every input point, computed relative to the centroid.
 
+Speed on small hulls (decomposition children, depth-frame clusters) is set by the number of numpy
+calls, not by arithmetic: :func:`best_rotations_about` therefore scores every (axis, silhouette
+edge) pair in a few large products on padded tables rather than in rotating calipers, whenever
+the silhouettes are short (up to 64 edges; longer ones go to the calipers, whose cost grows like
+S log S rather than S^2), and hulls of at most 64 facets skip the ranking step.
+
 Cost, for N points whose hull has H vertices, F ~ 2H facets and E ~ 3H edges:
 
 1. Check, centre, scale and rank the points (PCA): O(N).
@@ -61,6 +67,14 @@ _POLISH_TOLERANCE = 1e-5
 _SHADOW_CELLS = 4
 #: Longest hull edges whose pairs give candidate axes (all edges of hulls with fewer).
 _PAIR_EDGES = 24
+#: In-plane length (of unit-scaled hull edges) below which an edge gives no rectangle direction.
+_EDGE_TOLERANCE = 1e-12
+#: Entries per block of the batched rectangle products, to keep temporaries in cache.
+_BLOCK_SIZE = 1 << 15
+#: Longest silhouette (in edges) handled by the batched products; longer ones use calipers.
+_BRUTE_WIDTH = 64
+#: Longest edges paired for candidate axes when every facet normal is tried.
+_SMALL_PAIR_EDGES = 24
 
 
 def _as_points(points: ArrayLike) -> FloatArray:
@@ -109,7 +123,85 @@ def _plane_bases(axes: FloatArray) -> tuple[FloatArray, FloatArray]:
     return first, _cross(axes, first)
 
 
+def _padded(rows: IndexArray, values: IndexArray, count: int) -> tuple[IndexArray, IndexArray]:
+    """
+    Lay out `values` grouped by `rows` (sorted) as a (count, width) table, one row per group.
+
+    Short rows repeat their group's first value (repeats change no maximum or minimum).
+
+    :param rows: (M,) sorted group of each value, in ``range(count)``.
+    :param values: (M,) values.
+    :param count: number of groups.
+    :return: the table, and the group sizes (count,); an empty group's row holds value 0.
+    """
+    sizes = np.bincount(rows, minlength=count)
+    starts = np.cumsum(sizes) - sizes
+    first = values[np.minimum(starts, len(values) - 1)] if len(values) else np.zeros(count, int)
+    table = np.repeat(np.where(sizes > 0, first, 0)[:, None], max(int(sizes.max()), 1), axis=1)
+    table[rows, np.arange(len(rows)) - starts[rows]] = values
+    return table, sizes
+
+
 def best_rotations_about(hull: Hull, axes: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """
+    For each axis, find the minimum-volume box of the hull that has that axis.
+
+    The rotation about the axis is the minimum-area rectangle of the hull's projection along it,
+    which has a side along a projected edge of that projection's 2D hull (Freeman and Shapira
+    1975): the projected *silhouette* of the hull (:meth:`mvbb_ros.hull.Hull.silhouette`). So,
+    for every axis ``a`` and every silhouette edge, the edge's direction ``d`` in the plane
+    across ``a`` and ``u = a x d`` give a rectangle spanned by the silhouette vertices' extents
+    along ``d`` and ``u``; the least is exact (up to rounding). All axes are done at once, on
+    tables padded to the longest silhouette: one (K, S, 3) by (K, 3, 2S) product per block of
+    axes, O(K S^2) for silhouettes of S edges, but a fixed, small number of numpy calls.
+
+    :param hull: convex hull of the points.
+    :param axes: (K, 3) unit axes.
+    :return: volumes (K,) and right-handed frames (K, 3, 3) whose first column is the axis.
+    """
+    axes = np.ascontiguousarray(np.asarray(axes, dtype=np.float64).reshape(-1, 3))
+    count = len(axes)
+    axis_ids, edge_ids = np.nonzero(hull.silhouette(axes))
+    edges, edge_sizes = _padded(axis_ids, edge_ids, count)
+    if edges.shape[1] > _BRUTE_WIDTH:
+        return _caliper_rotations_about(hull, axes)
+    # Both ends of every silhouette edge: each silhouette vertex comes twice, which costs less
+    # than finding each once.
+    vertices = hull.edges[edges].reshape(count, -1)
+    # Silhouette edge directions in the plane across each axis, and the directions across them.
+    along = hull.edge_vectors[edges]
+    along -= np.einsum('kse,ke->ks', along, axes)[:, :, None] * axes[:, None, :]
+    lengths = np.sqrt(np.einsum('kse,kse->ks', along, along))
+    usable = lengths > _EDGE_TOLERANCE
+    along /= np.where(usable, lengths, 1.0)[:, :, None]
+    directions = np.concatenate([along, _cross(axes[:, None, :], along)], axis=1)
+    width = edges.shape[1]
+    areas = np.empty((count, width))
+    step = max(1, _BLOCK_SIZE // (2 * width * vertices.shape[1]))
+    for begin in range(0, count, step):
+        block = slice(begin, begin + step)
+        # Heights (S, k, 2S) with the silhouette vertex first: reducing over the first axis
+        # runs on long contiguous rows (over the last, numpy's reductions crawl).
+        # Heights (S, k, 2S) with the silhouette vertex first: reducing over the first axis
+        # runs on long contiguous rows (over the last, numpy's reductions crawl).
+        heights = hull.vertices[vertices[block]] @ directions[block].transpose(0, 2, 1)
+        heights = np.ascontiguousarray(heights.transpose(1, 0, 2))
+        spans = heights.max(axis=0) - heights.min(axis=0)
+        areas[block] = spans[:, :width] * spans[:, width:]
+    areas[~usable] = np.inf
+    best = np.argmin(areas, axis=1)
+    rows = np.arange(count)
+    heights = project(axes, hull.vertex_rows)
+    volumes = areas[rows, best] * (heights.max(axis=1) - heights.min(axis=1))
+    volumes[edge_sizes == 0] = np.inf
+    # Rounding leaves the chosen side a little off the plane across a short edge: square it up.
+    sides = along[rows, best]
+    sides -= np.einsum('kd,kd->k', sides, axes)[:, None] * axes
+    sides /= np.maximum(np.linalg.norm(sides, axis=1), 1e-300)[:, None]
+    return volumes, _frames_about(axes, sides)
+
+
+def _caliper_rotations_about(hull: Hull, axes: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """
     For each axis, find the minimum-volume box of the hull that has that axis.
 
@@ -311,11 +403,20 @@ def _best_frame(
     candidates: int,
     starts: int,
     max_rounds: int,
+    exhaustive: int,
 ) -> FloatArray:
     """Return the frame (3, 3) of the best box found for a full-dimensional hull."""
     size = len(hull.vertices)
     sample = np.arange(size) if size <= sample_size else rng.choice(size, sample_size, False)
-    volumes, frames = best_rotations_about(hull, candidate_axes(hull, candidates, sample))
+    if len(hull.normals) <= exhaustive:
+        # Small hulls: every distinct facet normal, the PCA axes and the edge-pair normals of
+        # the longest edges, all in one batched call (cheaper than ranking them).
+        axes = np.concatenate(
+            [_unique_axes(hull.normals), pca.T, _edge_pair_axes(hull, _SMALL_PAIR_EDGES)]
+        )
+    else:
+        axes = candidate_axes(hull, candidates, sample)
+    volumes, frames = best_rotations_about(hull, axes)
     order = np.argsort(volumes, kind='stable')[:starts]
     volumes, frames = polish(hull, frames[order], max_rounds)
     volume, frame = volumes[0], frames[0]
@@ -361,7 +462,8 @@ def minimum_bounding_box(
     grid_size: int = 1,
     candidates: int = 32,
     starts: int = 8,
-    max_rounds: int = 20,
+    max_rounds: int = 3,
+    exhaustive: int = 64,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -383,7 +485,10 @@ def minimum_bounding_box(
     :param candidates: facet normals, and half as many edge-pair normals, (ranked by a volume
         lower bound) whose best box is computed.
     :param starts: best boxes polished by alternating rotating calipers, halved every round.
-    :param max_rounds: most polishing rounds, and most grid searches.
+    :param max_rounds: most polishing rounds, and most grid searches (more than 3 changed no
+        box on the reference clouds, their decomposition children or small random clouds).
+    :param exhaustive: hulls with at most this many facets try every distinct facet normal (and
+        the PCA axes and the edge-pair normals) in one batched call instead of ranking them.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -393,6 +498,7 @@ def minimum_bounding_box(
         ('candidates', candidates, 1),
         ('starts', starts, 1),
         ('max_rounds', max_rounds, 0),
+        ('exhaustive', exhaustive, 0),
     ):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
@@ -428,5 +534,6 @@ def minimum_bounding_box(
                 candidates=int(candidates),
                 starts=int(starts),
                 max_rounds=int(max_rounds),
+                exhaustive=int(exhaustive),
             )
     return _enclosing(origin, centered, frame)

@@ -12,6 +12,7 @@ from conftest import require_shared_data
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from mvbb_ros import mvbb as mvbb_module
 from mvbb_ros.box import Box
 from mvbb_ros.hull import affine_rank, convex_hull, DegenerateHullError, interior_cull
 from mvbb_ros.mvbb import best_rotations_about, grid_axes, minimum_bounding_box
@@ -218,6 +219,21 @@ def test_best_rotation_about_an_axis_matches_a_fine_angle_scan():
         )
         assert volume <= scanned.min() * (1.0 + 1e-12)
         assert volume >= scanned.min() * (1.0 - 1e-6)
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_batched_products_and_calipers_find_the_same_rotations(seed):
+    """Both ways of turning a box about an axis (short and long silhouettes) agree."""
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(40 + 60 * seed, 3)) * [2.0, 1.0, 0.5]
+    hull = convex_hull(points)
+    axes = np.vstack([hull.normals, _random_rotation(seed).T])
+    volumes, frames = best_rotations_about(hull, axes)
+    expected, _ = mvbb_module._caliper_rotations_about(hull, axes)
+    np.testing.assert_allclose(volumes, expected, rtol=1e-9)
+    for frame, volume in zip(frames, volumes, strict=True):
+        np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
+        assert volume == pytest.approx(np.prod(np.ptp(hull.vertices @ frame, axis=0)), rel=1e-9)
 
 
 def test_grid_axes_are_distinct_unit_directions():
