@@ -20,7 +20,8 @@ stops its subprocesses on any exit (error, SIGINT, SIGTERM).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+import contextlib
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
@@ -51,8 +52,30 @@ class DemoError(Exception):
     """The demo could not complete; the message says which step failed."""
 
 
+#: While a child process is being started and registered, an interrupt is held back (and
+#: raised right after): otherwise it could land after the fork but before the child is known,
+#: and that child would outlive the demo.
+_deferred_interrupt: dict[str, Any] = {'inside': False, 'signal': None}
+
+
 def _interrupt(signum: int, frame: Any) -> None:
+    if _deferred_interrupt['inside']:
+        _deferred_interrupt['signal'] = signum
+        return
     raise KeyboardInterrupt(f'signal {signum}')
+
+
+@contextlib.contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Hold back SIGINT/SIGTERM/SIGHUP for the block; raise KeyboardInterrupt after it."""
+    _deferred_interrupt['inside'] = True
+    try:
+        yield
+    finally:
+        _deferred_interrupt['inside'] = False
+        pending, _deferred_interrupt['signal'] = _deferred_interrupt['signal'], None
+        if pending is not None:
+            raise KeyboardInterrupt(f'signal {pending}')
 
 
 def demo_environment(environ: dict[str, str] | None = None) -> dict[str, str]:
@@ -199,8 +222,9 @@ class _Children:
         self.processes: list[subprocess.Popen] = []
 
     def start(self, command: Sequence[str], **kwargs: Any) -> subprocess.Popen:
-        process = subprocess.Popen(list(command), **kwargs)
-        self.processes.append(process)
+        with _interrupts_deferred():
+            process = subprocess.Popen(list(command), **kwargs)
+            self.processes.append(process)
         return process
 
     @staticmethod
@@ -251,7 +275,8 @@ def run_demo(
     if hasattr(sys.stdout, 'reconfigure'):  # keep our lines in order with the subprocesses'
         sys.stdout.reconfigure(line_buffering=True)
     previous = {
-        number: signal.signal(number, _interrupt) for number in (signal.SIGTERM, signal.SIGHUP)
+        number: signal.signal(number, _interrupt)
+        for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     }
     children = _Children()
     listeners: list[_Listener] = []
