@@ -15,6 +15,8 @@ import sys
 import time
 from typing import Any
 
+from mvbb_ros.settings import PipelineSettings
+
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
@@ -27,8 +29,9 @@ def _add_decomposition_options(parser: argparse.ArgumentParser) -> None:
         '--gain-threshold',
         '-t',
         type=float,
-        default=0.94,
-        help='accept a split while the volume gain Theta* is below this (paper t; default 0.94)',
+        default=PipelineSettings.gain_threshold,
+        help='accept a split while the volume gain Theta* is below this (paper t; default '
+        f'{PipelineSettings.gain_threshold})',
     )
     group.add_argument(
         '--min-points',

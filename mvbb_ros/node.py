@@ -32,8 +32,8 @@ from mvbb_ros.pipeline import PipelineResult, process_cloud
 from mvbb_ros.settings import (
     PipelineSettings,
     SettingSpec,
+    SPEC_BY_NAME,
     SPECS,
-    validate_combination,
     validate_setting,
 )
 from rcl_interfaces.msg import (
@@ -96,6 +96,15 @@ def _setting_value(spec: SettingSpec, value: Any) -> Any:
     if spec.kind is list:
         return [] if value is None else [float(v) for v in value]
     return value
+
+
+def _our_changes(parameters: Sequence[Parameter]) -> dict[str, Any]:
+    """Return the settings among `parameters` (not e.g. use_sim_time) as setting values."""
+    return {
+        parameter.name: _setting_value(SPEC_BY_NAME[parameter.name], parameter.value)
+        for parameter in parameters
+        if parameter.name in SPEC_BY_NAME
+    }
 
 
 class DecomposerNode(Node):
@@ -162,24 +171,17 @@ class DecomposerNode(Node):
 
     def _validate_parameters(self, parameters: Sequence[Parameter]) -> SetParametersResult:
         """Refuse a change with a reason unless every value, and the result, is valid."""
-        changes = {}
-        for parameter in parameters:
-            spec = next((s for s in SPECS if s.name == parameter.name), None)
-            if spec is None:
-                continue  # not ours (e.g. use_sim_time)
-            value = _setting_value(spec, parameter.value)
-            reason = validate_setting(spec.name, value)
-            if reason is not None:
-                return SetParametersResult(successful=False, reason=reason)
-            changes[spec.name] = value
-        if changes and self._all_declared():
+        changes = _our_changes(parameters)
+        if self._all_declared():
             try:
-                candidate = self._settings.updated(changes)
+                self._settings.updated(changes)  # each value, then how they fit together
             except ValueError as error:
                 return SetParametersResult(successful=False, reason=str(error))
-            reason = validate_combination(candidate)
-            if reason is not None:
-                return SetParametersResult(successful=False, reason=reason)
+        else:  # still declaring: the rest is not there yet, so check each value on its own
+            for name, value in changes.items():
+                reason = validate_setting(name, value)
+                if reason is not None:
+                    return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
     def _all_declared(self) -> bool:
@@ -189,11 +191,7 @@ class DecomposerNode(Node):
         """Take accepted changes into the settings and process the last cloud again."""
         if not self._all_declared():
             return
-        changes = {}
-        for parameter in parameters:
-            spec = next((s for s in SPECS if s.name == parameter.name), None)
-            if spec is not None:
-                changes[spec.name] = _setting_value(spec, parameter.value)
+        changes = _our_changes(parameters)
         if not changes:
             return
         self._settings = self._settings.updated(changes)
