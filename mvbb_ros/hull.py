@@ -206,6 +206,42 @@ def interior_cull(points: FloatArray) -> IndexArray:
     return np.flatnonzero(keep)
 
 
+def column_extremes(points: ArrayLike, cells: int) -> IndexArray:
+    """
+    Return the indices of the highest and lowest point of every grid column, along each axis.
+
+    Barequet and Har-Peled's grid coreset: for each coordinate axis, the plane of the other two
+    is cut into ``cells x cells`` columns over the points' bounding box, and only the extreme
+    points of each column along that axis are kept. Every point is then within one column width
+    (1 / `cells` of the box side) of the hull of the kept points, across the column, so a box
+    direction found on them is nearly as good as one found on all points; the caller grows its
+    box to enclose every point. Cost O(N), a few passes. Best given in the PCA frame, where flat
+    scans fill few columns.
+
+    :param points: (N, 3) points, N >= 1.
+    :param cells: columns per side, >= 1.
+    :return: sorted indices of the kept points (ties at a column's extreme are all kept).
+    """
+    rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
+    low = rows.min(axis=1)
+    span = rows.max(axis=1) - low
+    # Column index of every point along each axis (the top edge falls in the last column).
+    scale = np.divide(cells, span, out=np.zeros(3), where=span > 0.0)
+    bins = np.minimum(((rows - low[:, None]) * scale[:, None]).astype(np.intp), cells - 1)
+    keep = np.zeros(rows.shape[1], dtype=bool)
+    for axis in range(3):
+        first, second = (axis + 1) % 3, (axis + 2) % 3
+        column = bins[first] * cells + bins[second]
+        heights = rows[axis]
+        highest = np.full(cells * cells, -np.inf)
+        np.maximum.at(highest, column, heights)
+        lowest = np.full(cells * cells, np.inf)
+        np.minimum.at(lowest, column, heights)
+        keep |= heights >= highest[column]
+        keep |= heights <= lowest[column]
+    return np.flatnonzero(keep)
+
+
 def convex_hull(points: ArrayLike) -> Hull:
     """
     Compute the convex hull of full-dimensional 3D points, with edge-facet adjacency.

@@ -31,8 +31,10 @@ S log S rather than S^2), and hulls of at most 64 facets skip the ranking step.
 Cost, for N points whose hull has H vertices, F ~ 2H facets and E ~ 3H edges:
 
 1. Check, centre, scale and rank the points (PCA): O(N).
-2. Cull the points inside a polytope of up to 26 extreme points, when a probe says it pays (solid
-   clouds; flat-sided scans keep most points): O(N).
+2. Clouds of 2,048 points or more: keep the extremes of the columns of a 32 x 32 grid along each
+   PCA axis (Barequet and Har-Peled's grid coreset; at most 6 144 points, usually a few thousand),
+   then cull the points inside a polytope of up to 26 extreme points, when a probe says it pays
+   (solid clouds; flat-sided scans keep most points): O(N).
 3. Qhull on the survivors: O(N log H).
 4. Rank the facet normals and the 276 edge-pair normals by the bound: O(F + 276) against 96
    binned area vectors and ``sample_size`` sampled hull vertices.
@@ -41,6 +43,10 @@ Cost, for N points whose hull has H vertices, F ~ 2H facets and E ~ 3H edges:
    round: 109 to 149 axes in all on the reference clouds): O(F + E) to find the silhouette and
    O(S log S) for the calipers on its S vertices (S grows like sqrt(H) on smooth shapes).
 6. Enclose every point: O(N).
+
+The coreset makes the search approximate where Qhull's hull was exact: the box found on it is
+grown to enclose every point, and on the reference clouds it lost nothing measurable (worst
+1.0042 x best known, against 1.0041 on the exact hull) while the fits took a third less time.
 
 So beyond Qhull the cost grows linearly with H (``benchmarks/mvbb.py --scaling`` measures it):
 only the 24 longest edges are paired, and nothing else enumerates pairs of facets or edges,
@@ -53,7 +59,14 @@ import itertools
 import math
 
 from mvbb_ros.box import Box
-from mvbb_ros.hull import affine_rank, convex_hull, DegenerateHullError, Hull, project
+from mvbb_ros.hull import (
+    affine_rank,
+    column_extremes,
+    convex_hull,
+    DegenerateHullError,
+    Hull,
+    project,
+)
 from mvbb_ros.rectangle import min_area_rectangle, min_area_rectangles
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -75,6 +88,8 @@ _BLOCK_SIZE = 1 << 15
 _BRUTE_WIDTH = 64
 #: Longest edges paired for candidate axes when every facet normal is tried.
 _SMALL_PAIR_EDGES = 24
+#: Clouds with at least this many points are searched on their grid coreset (``coreset_cells``).
+CORESET_MIN_POINTS = 2048
 
 
 def _as_points(points: ArrayLike) -> FloatArray:
@@ -446,6 +461,14 @@ def _planar_frame(unit: FloatArray, pca: FloatArray) -> FloatArray:
     return np.column_stack([first, second, np.cross(first, second)])
 
 
+def _search_points(unit: FloatArray, pca: FloatArray, coreset_cells: int) -> FloatArray:
+    """Return the points whose hull the search runs on: a grid coreset of large clouds."""
+    if coreset_cells == 0 or len(unit) < CORESET_MIN_POINTS:
+        return unit
+    # The PCA frame's coordinates as (3, N) rows, the layout column_extremes works on.
+    return unit[column_extremes((pca.T @ unit.T).T, coreset_cells)]
+
+
 def _enclosing(origin: FloatArray, centered_rows: FloatArray, frame: FloatArray) -> Box:
     """Return the smallest box with the frame's axes around points given relative to `origin`."""
     local = project(frame.T, centered_rows)
@@ -460,10 +483,11 @@ def minimum_bounding_box(
     seed: int = 0,
     sample_size: int = 200,
     grid_size: int = 1,
-    candidates: int = 32,
+    candidates: int = 48,
     starts: int = 8,
     max_rounds: int = 3,
     exhaustive: int = 64,
+    coreset_cells: int = 32,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -489,6 +513,10 @@ def minimum_bounding_box(
         box on the reference clouds, their decomposition children or small random clouds).
     :param exhaustive: hulls with at most this many facets try every distinct facet normal (and
         the PCA axes and the edge-pair normals) in one batched call instead of ranking them.
+    :param coreset_cells: clouds of 2,048 points or more are searched on the column extremes of
+        a ``coreset_cells``-square grid in their PCA frame (Barequet and Har-Peled's grid
+        coreset, :func:`mvbb_ros.hull.column_extremes`) instead of all their points; the box is
+        still grown to enclose every point. 0 searches the exact hull of all points.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -499,6 +527,7 @@ def minimum_bounding_box(
         ('starts', starts, 1),
         ('max_rounds', max_rounds, 0),
         ('exhaustive', exhaustive, 0),
+        ('coreset_cells', coreset_cells, 0),
     ):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
@@ -521,7 +550,7 @@ def minimum_bounding_box(
         frame = _planar_frame(unit, pca)
     else:
         try:
-            hull = convex_hull(unit)
+            hull = convex_hull(_search_points(unit, pca, int(coreset_cells)))
         except DegenerateHullError:
             frame = _planar_frame(unit, pca)
         else:

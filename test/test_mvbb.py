@@ -14,7 +14,13 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from mvbb_ros import mvbb as mvbb_module
 from mvbb_ros.box import Box
-from mvbb_ros.hull import affine_rank, convex_hull, DegenerateHullError, interior_cull
+from mvbb_ros.hull import (
+    affine_rank,
+    column_extremes,
+    convex_hull,
+    DegenerateHullError,
+    interior_cull,
+)
 from mvbb_ros.mvbb import best_rotations_about, grid_axes, minimum_bounding_box
 from mvbb_ros.rectangle import convex_hull_2d, min_area_rectangle, min_area_rectangles
 import numpy as np
@@ -382,6 +388,58 @@ def test_silhouette_projects_onto_the_2d_hull():
         outline = set(ConvexHull(projected).vertices)
         silhouette_vertices = set(hull.edges[on_silhouette].ravel())
         assert outline <= silhouette_vertices
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    points=hnp.arrays(
+        np.float64,
+        st.tuples(st.integers(1, 400), st.just(3)),
+        elements=st.floats(-5.0, 5.0, allow_nan=False, allow_infinity=False),
+    ),
+    cells=st.integers(1, 12),
+)
+def test_column_extremes_keeps_exactly_the_extremes_of_every_column(points, cells):
+    kept = column_extremes(points, cells)
+    assert np.all(np.diff(kept) > 0)
+    # Brute force: the column of each point along each axis, and its extremes there.
+    low = points.min(axis=0)
+    span = points.max(axis=0) - low
+    scale = np.divide(cells, span, out=np.zeros(3), where=span > 0)
+    bins = np.minimum(((points - low) * scale).astype(int), cells - 1)
+    expected = set()
+    for axis in range(3):
+        others = [(axis + 1) % 3, (axis + 2) % 3]
+        columns = {}
+        for index, key in enumerate(map(tuple, bins[:, others])):
+            columns.setdefault(key, []).append(index)
+        for members in columns.values():
+            heights = points[members, axis]
+            expected |= {
+                m
+                for m, h in zip(members, heights, strict=True)
+                if h in (heights.max(), heights.min())
+            }
+    assert set(kept.tolist()) == expected
+
+
+def test_the_coreset_search_encloses_every_point_and_keeps_the_volume():
+    """Large clouds are searched on their grid coreset; the box still holds every point."""
+    rotation = _random_rotation(21)
+    rng = np.random.default_rng(21)
+    # A noisy rotated half-cylinder shell: a partial view, 20k points, far from the origin.
+    angle = rng.uniform(0.0, np.pi, 20_000)
+    shell = np.column_stack([np.cos(angle), np.sin(angle), rng.uniform(-2.0, 2.0, 20_000)])
+    shell += rng.normal(scale=0.01, size=shell.shape)
+    points = shell @ rotation.T * 0.05 + [3.0, -1.0, 0.5]
+    assert len(points) >= mvbb_module.CORESET_MIN_POINTS
+    coreset_box = minimum_bounding_box(points)
+    exact_box = minimum_bounding_box(points, coreset_cells=0)
+    _assert_valid(coreset_box, points)
+    _assert_valid(exact_box, points)
+    assert coreset_box.volume <= QUALITY_BOUND * exact_box.volume
+    with pytest.raises(ValueError, match='coreset_cells'):
+        minimum_bounding_box(points, coreset_cells=-1)
 
 
 # Quality on the shared reference clouds -----------------------------------------------------
