@@ -477,6 +477,48 @@ def _enclosing(origin: FloatArray, centered_rows: FloatArray, frame: FloatArray)
     return Box(center=origin + frame @ ((low + high) / 2.0), rotation=frame, extents=high - low)
 
 
+def _normalized(
+    points: ArrayLike,
+) -> tuple[FloatArray, FloatArray, FloatArray | None, int, FloatArray]:
+    """
+    Check `points` and bring them to the coordinates the search works in.
+
+    :return: the centroid (3,); the points relative to it as (3, N) rows; the same scaled to unit
+        size as (N, 3), or None when all points coincide; the affine rank and the PCA frame.
+    """
+    pts = _as_points(points)
+    # Everything runs on coordinates relative to the centroid (and scaled to unit size for
+    # Qhull), which keeps far-away and tiny clouds precise.
+    rows = np.ascontiguousarray(pts.T)
+    origin = rows.mean(axis=1)
+    centered = rows - origin[:, None]
+    scale = float(np.max(np.abs(centered)))
+    if scale == 0.0:
+        return origin, centered, None, 0, np.eye(3)
+    unit = (centered / scale).T
+    rank, pca = affine_rank(unit)
+    return origin, centered, unit, rank, pca
+
+
+def search_hull(points: ArrayLike, *, coreset_cells: int = 32) -> Hull:
+    """
+    Return the convex hull that :func:`minimum_bounding_box` searches for `points`.
+
+    Everything a fit does before its search (checks, centring, PCA, the grid coreset, the cull
+    and Qhull), in the centred unit-size coordinates the search uses: the cost floor of a fit,
+    which ``benchmarks/mvbb.py`` times beside the whole fit.
+
+    :param points: (N, 3) finite points spanning three dimensions.
+    :param coreset_cells: as for :func:`minimum_bounding_box`.
+    :return: the hull.
+    :raises DegenerateHullError: when the points span fewer than three dimensions.
+    """
+    _, _, unit, rank, pca = _normalized(points)
+    if unit is None or rank < 3:
+        raise DegenerateHullError(f'the points span {rank} dimensions, a hull needs 3')
+    return convex_hull(_search_points(unit, pca, coreset_cells))
+
+
 def minimum_bounding_box(
     points: ArrayLike,
     *,
@@ -531,17 +573,9 @@ def minimum_bounding_box(
     ):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
-    pts = _as_points(points)
-    # Everything below runs on coordinates as three contiguous rows, relative to the centroid
-    # (and scaled to unit size for Qhull), which keeps far-away and tiny clouds precise.
-    rows = np.ascontiguousarray(pts.T)
-    origin = rows.mean(axis=1)
-    centered = rows - origin[:, None]
-    scale = float(np.max(np.abs(centered)))
-    if scale == 0.0:
+    origin, centered, unit, rank, pca = _normalized(points)
+    if unit is None:
         return _enclosing(origin, centered, np.eye(3))
-    unit = (centered / scale).T
-    rank, pca = affine_rank(unit)
     if rank == 0:
         frame = np.eye(3)
     elif rank == 1:

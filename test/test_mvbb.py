@@ -21,7 +21,7 @@ from mvbb_ros.hull import (
     DegenerateHullError,
     interior_cull,
 )
-from mvbb_ros.mvbb import best_rotations_about, grid_axes, minimum_bounding_box
+from mvbb_ros.mvbb import best_rotations_about, grid_axes, minimum_bounding_box, search_hull
 from mvbb_ros.rectangle import convex_hull_2d, min_area_rectangle, min_area_rectangles
 import numpy as np
 import pytest
@@ -440,6 +440,27 @@ def test_the_coreset_search_encloses_every_point_and_keeps_the_volume():
     assert coreset_box.volume <= QUALITY_BOUND * exact_box.volume
     with pytest.raises(ValueError, match='coreset_cells'):
         minimum_bounding_box(points, coreset_cells=-1)
+
+
+def test_search_hull_is_the_exact_hull_of_small_clouds_and_refuses_flat_ones():
+    points = np.random.default_rng(22).normal(size=(500, 3)) * [3.0, 2.0, 1.0] + 100.0
+    assert len(search_hull(points).vertices) == len(ConvexHull(points).vertices)
+    # A large cloud on an ellipsoid (every point a hull vertex): its coreset keeps far fewer.
+    many = np.random.default_rng(23).normal(size=(8000, 3))
+    many = many / np.linalg.norm(many, axis=1)[:, None] * [3.0, 2.0, 1.0]
+    coreset = search_hull(many)
+    exact = search_hull(many, coreset_cells=0)
+    assert len(coreset.vertices) < len(exact.vertices)
+    # The coreset hull lies inside the exact one and spans it along every PCA axis (the
+    # extreme point along an axis is the extreme of its own column).
+    planes = ConvexHull(exact.vertices).equations
+    assert (coreset.vertices @ planes[:, :3].T + planes[:, 3]).max() <= 1e-12
+    centered = many - many.mean(axis=0)
+    _, pca = affine_rank(centered / np.abs(centered).max())
+    widths = np.ptp(coreset.vertices @ pca, axis=0) / np.ptp(exact.vertices @ pca, axis=0)
+    np.testing.assert_allclose(widths, 1.0, atol=1e-12)
+    with pytest.raises(DegenerateHullError, match='span 2 dimensions'):
+        search_hull(np.column_stack([points[:, :2], np.zeros(len(points))]))
 
 
 # Quality on the shared reference clouds -----------------------------------------------------
