@@ -40,7 +40,7 @@ Cost, for N points whose hull has H vertices, F ~ 2H facets and E ~ 3H edges:
    binned area vectors and ``sample_size`` sampled hull vertices.
 5. Best rotation about each axis tried (1.5 ``candidates`` axes, then two per frame and round of
    the polish, which halves the ``starts`` frames every round, then 13 grid directions per grid
-   round: 109 to 149 axes in all on the reference clouds): O(F + E) to find the silhouette and
+   round: 101 to 130 axes in all on the reference clouds): O(F + E) to find the silhouette and
    O(S log S) for the calipers on its S vertices (S grows like sqrt(H) on smooth shapes).
 6. Enclose every point: O(N).
 
