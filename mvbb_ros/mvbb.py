@@ -477,6 +477,12 @@ def _enclosing(origin: FloatArray, centered_rows: FloatArray, frame: FloatArray)
     return Box(center=origin + frame @ ((low + high) / 2.0), rotation=frame, extents=high - low)
 
 
+def _check_knob(name: str, value: object, low: int) -> None:
+    """Raise ValueError unless `value` is an integer (not a bool) >= `low`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
+
+
 def _normalized(
     points: ArrayLike,
 ) -> tuple[FloatArray, FloatArray, FloatArray | None, int, FloatArray]:
@@ -513,6 +519,7 @@ def search_hull(points: ArrayLike, *, coreset_cells: int = 32) -> Hull:
     :return: the hull.
     :raises DegenerateHullError: when the points span fewer than three dimensions.
     """
+    _check_knob('coreset_cells', coreset_cells, 0)
     _, _, unit, rank, pca = _normalized(points)
     if unit is None or rank < 3:
         raise DegenerateHullError(f'the points span {rank} dimensions, a hull needs 3')
@@ -571,8 +578,7 @@ def minimum_bounding_box(
         ('exhaustive', exhaustive, 0),
         ('coreset_cells', coreset_cells, 0),
     ):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-            raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
+        _check_knob(name, value, low)
     origin, centered, unit, rank, pca = _normalized(points)
     if unit is None:
         return _enclosing(origin, centered, np.eye(3))

@@ -459,6 +459,8 @@ def test_search_hull_is_the_exact_hull_of_small_clouds_and_refuses_flat_ones():
     _, pca = affine_rank(centered / np.abs(centered).max())
     widths = np.ptp(coreset.vertices @ pca, axis=0) / np.ptp(exact.vertices @ pca, axis=0)
     np.testing.assert_allclose(widths, 1.0, atol=1e-12)
+    with pytest.raises(ValueError, match='coreset_cells must be an integer >= 0'):
+        search_hull(points, coreset_cells=-1)
     with pytest.raises(DegenerateHullError, match='span 2 dimensions'):
         search_hull(np.column_stack([points[:, :2], np.zeros(len(points))]))
 
