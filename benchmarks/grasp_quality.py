@@ -73,10 +73,16 @@ def parse_args(argv=None) -> argparse.Namespace:
         help='soft-contact radius / object diameter (default: finger width / 4 = 0.025)',
     )
     parser.add_argument(
-        '--width-factor', type=float, default=1.2, help='gripper opening / object diameter'
+        '--width-factor',
+        type=float,
+        default=evaluation.DEFAULT_WIDTH_FACTOR,
+        help='gripper opening / object diameter',
     )
     parser.add_argument(
-        '--depth-factor', type=float, default=0.5, help='finger depth / object diameter'
+        '--depth-factor',
+        type=float,
+        default=evaluation.DEFAULT_DEPTH_FACTOR,
+        help='finger depth / object diameter',
     )
     parser.add_argument('--json', type=Path, help='also write every summary row as JSON')
     parser.add_argument(

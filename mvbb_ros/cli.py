@@ -526,6 +526,14 @@ def _run_bag_process(args: argparse.Namespace) -> int:
 
 def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:
     """Add `mvbb evaluate` (grasp quality, paper Fig. 6; see mvbb_ros.evaluation)."""
+    from mvbb_ros.evaluation import (
+        DEFAULT_CONE_EDGES,
+        DEFAULT_DEPTH_FACTOR,
+        DEFAULT_FRICTION,
+        DEFAULT_SPHERICAL_STEP_DEG,
+        DEFAULT_WIDTH_FACTOR,
+    )
+
     evaluate = commands.add_parser(
         'evaluate',
         help='score box-face grasps against spherical grasps on a mesh (paper Fig. 6)',
@@ -549,15 +557,23 @@ def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         '--spherical-step',
         type=_non_negative_float,
-        default=10.0,
+        default=DEFAULT_SPHERICAL_STEP_DEG,
         metavar='DEG',
         help="angular step of the spherical baseline, dividing 180 (default 10: the paper's "
         '22104 grasps; 20 is 8x faster; 0 skips it)',
     )
     evaluate.add_argument(
-        '--friction', type=_non_negative_float, default=0.5, help='Coulomb mu (default 0.5)'
+        '--friction',
+        type=_non_negative_float,
+        default=DEFAULT_FRICTION,
+        help=f'Coulomb mu (default {DEFAULT_FRICTION})',
     )
-    evaluate.add_argument('--cone-edges', type=int, default=8, help='friction cone edges (8)')
+    evaluate.add_argument(
+        '--cone-edges',
+        type=int,
+        default=DEFAULT_CONE_EDGES,
+        help=f'friction cone edges ({DEFAULT_CONE_EDGES})',
+    )
     evaluate.add_argument(
         '--contact-radius',
         type=_non_negative_float,
@@ -565,10 +581,16 @@ def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:
         help='soft-contact radius in mesh units (default finger width / 4; 0: hard contacts)',
     )
     evaluate.add_argument(
-        '--width-factor', type=_positive_float, default=1.2, help='opening / D (default 1.2)'
+        '--width-factor',
+        type=_positive_float,
+        default=DEFAULT_WIDTH_FACTOR,
+        help=f'opening / D (default {DEFAULT_WIDTH_FACTOR})',
     )
     evaluate.add_argument(
-        '--depth-factor', type=_positive_float, default=0.5, help='finger depth / D (default 0.5)'
+        '--depth-factor',
+        type=_positive_float,
+        default=DEFAULT_DEPTH_FACTOR,
+        help=f'finger depth / D (default {DEFAULT_DEPTH_FACTOR})',
     )
     evaluate.add_argument('--seed', type=int, default=0, help='random seed of the box fit')
     evaluate.add_argument('--json', type=Path, help='write the summary as JSON')

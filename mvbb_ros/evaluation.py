@@ -146,6 +146,9 @@ BoolArray = NDArray[np.bool_]
 DEFAULT_FRICTION = 0.5
 #: Default number of friction cone edges of the linearised cone.
 DEFAULT_CONE_EDGES = 8
+#: Default gripper opening and finger depth, as fractions of the object's diameter D.
+DEFAULT_WIDTH_FACTOR = 1.2
+DEFAULT_DEPTH_FACTOR = 0.5
 #: Default angular step of the spherical baseline, degrees (the paper's).
 DEFAULT_SPHERICAL_STEP_DEG = 10.0
 #: Gain thresholds of the paper's decompositions (Table I, Fig. 5 and 6).
@@ -419,8 +422,8 @@ class ParallelJawGripper:
         cls,
         size: float,
         *,
-        width_factor: float = 1.2,
-        depth_factor: float = 0.5,
+        width_factor: float = DEFAULT_WIDTH_FACTOR,
+        depth_factor: float = DEFAULT_DEPTH_FACTOR,
         finger_width_factor: float = 0.1,
         retreat_factor: float = 0.01,
     ) -> ParallelJawGripper:
