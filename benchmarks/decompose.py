@@ -17,7 +17,7 @@ of ``--repeats`` runs, for the paper's algorithm (``default``) and for each opti
 ``volume`` (3D split measure) and ``rescore`` (the best ``RESCORE_CUTS`` cuts re-scored by real
 box fits). The scan table gives the counts and volume ratios on every cloud in
 ``scans/``. The header names the MVBB implementation used (first docstring line and git blob
-hash of ``mvbb_ros/mvbb.py``), because the box counts depend on it.
+hash of ``mvbb_ros/geometry/fit.py``), because the box counts depend on it.
 
 Units: the GraspIt! mug is in millimetres, the bunny and the scans in metres, Homer is
 unitless. Nothing here is metric: theta and Theta* are ratios, the grid is relative to each box
@@ -43,9 +43,9 @@ import statistics
 import sys
 import time
 
-from mvbb_ros import decomposition
-from mvbb_ros import mvbb as mvbb_module
-from mvbb_ros.decomposition import decompose
+from mvbb_ros.geometry import decomposition
+from mvbb_ros.geometry import fit as fit_module
+from mvbb_ros.geometry.decomposition import decompose
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -69,10 +69,10 @@ VARIANTS: dict[str, dict[str, object]] = {
 
 def mvbb_identity() -> str:
     """Name the MVBB implementation: first docstring line and git blob hash of mvbb.py."""
-    path = Path(mvbb_module.__file__)
+    path = Path(fit_module.__file__)
     data = path.read_bytes()
     blob = hashlib.sha1(b'blob %d\0' % len(data) + data).hexdigest()[:12]
-    summary = (mvbb_module.__doc__ or '').strip().splitlines()[0]
+    summary = (fit_module.__doc__ or '').strip().splitlines()[0]
     return f'{summary} (mvbb.py blob {blob})'
 
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import sys
 import time
 
-from mvbb_ros.decomposition import decompose
-from mvbb_ros.grasps import grasp_hypotheses
+from mvbb_ros.geometry.decomposition import decompose
+from mvbb_ros.geometry.grasps import grasp_hypotheses
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

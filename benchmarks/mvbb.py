@@ -3,19 +3,19 @@ Benchmark the minimum-volume bounding box against Open3D and trimesh, in one run
 
 For every ``.npy`` cloud under the shared data's ``models/`` and ``scans/`` folders, and for three
 generated solid clouds (a box, a sphere, an ellipsoid; 300k points each, rotated and moved off the
-origin), it prints, for ours (:func:`mvbb_ros.mvbb.minimum_bounding_box`), Open3D's PCA box
+origin), it prints, for ours (:func:`mvbb_ros.geometry.fit.minimum_bounding_box`), Open3D's PCA box
 (``get_oriented_bounding_box``), Open3D's minimal box (``get_minimal_oriented_bounding_box``) and
 ``trimesh.bounds.oriented_bounds``:
 
 * the volume divided by the best-known volume (``mvbb_reference.json``; for generated clouds the
   smallest enclosing box of this run, marked ``*``), and whether the box encloses every point
-  (tolerance 1e-9 of its size, as :meth:`mvbb_ros.box.Box.contains`);
+  (tolerance 1e-9 of its size, as :meth:`mvbb_ros.geometry.box.Box.contains`);
 * the median time over ``--repeats`` calls, the methods taking turns so that load on the machine
   affects them alike, each after a 5 ms rest (Open3D's point cloud is built outside the timing);
 * our median time divided by each peer's;
 * ``floor``: the median time of everything our fit does before its search
-  (:func:`mvbb_ros.mvbb.search_hull`: checks, PCA, grid coreset, cull, Qhull), divided by Open3D's
-  minimal box time. Where it is above 0.2, no search could meet the 0.2 target.
+  (:func:`mvbb_ros.geometry.fit.search_hull`: checks, PCA, grid coreset, cull, Qhull), divided by
+  Open3D's minimal box time. Where it is above 0.2, no search could meet the 0.2 target.
 
 It ends with the targets of issue 3 (volume <= 1.01 x best known on every reference cloud; every
 box of ours encloses its cloud; time <= 0.5 x trimesh and <= 0.2 x Open3D minimal on every cloud of
@@ -39,8 +39,8 @@ import statistics
 import sys
 import time
 
-from mvbb_ros.box import Box, right_handed
-from mvbb_ros.mvbb import minimum_bounding_box, search_hull
+from mvbb_ros.geometry.box import Box, right_handed
+from mvbb_ros.geometry.fit import minimum_bounding_box, search_hull
 import numpy as np
 import open3d as o3d
 from scipy.spatial import ConvexHull

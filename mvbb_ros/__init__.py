@@ -9,10 +9,10 @@ Huebner, Ruthotto and Kragic, "Minimum Volume Bounding Box Decomposition for Sha
 in Robot Grasping", ICRA 2008.
 """
 
-from mvbb_ros.box import Box
-from mvbb_ros.decomposition import decompose, Decomposition
-from mvbb_ros.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.mvbb import minimum_bounding_box
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.decomposition import decompose, Decomposition
+from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
 
 __all__ = [
     'Box',

@@ -316,8 +316,8 @@ def decompose_and_report(
     title: str,
 ) -> None:
     """Decompose `points`, print the tables, and write the JSON and picture when asked."""
-    from mvbb_ros.decomposition import decompose
-    from mvbb_ros.grasps import grasp_hypotheses
+    from mvbb_ros.geometry.decomposition import decompose
+    from mvbb_ros.geometry.grasps import grasp_hypotheses
 
     start = time.perf_counter()
     decomposition = decompose(points, **_decomposition_kwargs(args))

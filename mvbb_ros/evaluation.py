@@ -16,7 +16,7 @@ metres score the same when the gripper is scaled with them
 Gripper
 -------
 A grasp is a pre-grasp pose: ``position`` (the TCP, the point between the two fingertips, as in
-:mod:`mvbb_ros.grasps`), a unit ``approach`` direction (the way the hand moves) and a unit
+:mod:`mvbb_ros.geometry.grasps`), a unit ``approach`` direction (the way the hand moves) and a unit
 ``closing`` direction (the line the fingers close along; made orthogonal to ``approach``).
 With ``side = approach x closing``, the hand (:class:`ParallelJawGripper`) is:
 
@@ -118,11 +118,11 @@ fingers swapped; they are kept so that the count matches the paper's asymmetric 
 Comparison (Figure 6)
 ---------------------
 :func:`compare_grasp_sets` evaluates, on one object, the spherical grasps, the 24 grasps of
-the root box (:func:`mvbb_ros.mvbb.minimum_bounding_box`) and the hypotheses of decompositions
-(:func:`mvbb_ros.decomposition.decompose`) at several gain thresholds
-(:func:`mvbb_ros.grasps.grasp_hypotheses`, ranked by its default strategy), all with the same
-gripper; :func:`format_comparison` and :func:`plot_quality_space` turn it into the table and
-the paper's (epsilon, V) scatter plot.
+the root box (:func:`mvbb_ros.geometry.fit.minimum_bounding_box`) and the hypotheses of
+decompositions (:func:`mvbb_ros.geometry.decomposition.decompose`) at several gain thresholds
+(:func:`mvbb_ros.geometry.grasps.grasp_hypotheses`, ranked by its default strategy), all with
+the same gripper; :func:`format_comparison` and :func:`plot_quality_space` turn it into the
+table and the paper's (epsilon, V) scatter plot.
 """
 
 from __future__ import annotations
@@ -747,7 +747,7 @@ def evaluate_grasps(
 
     :param mesh: a :class:`GraspTarget` or anything :meth:`GraspTarget.from_mesh` accepts.
     :param grasps: a sequence of grasp-like objects (``.position``, ``.approach``,
-        ``.closing``, e.g. :class:`mvbb_ros.grasps.Grasp`), or a ``(positions, approaches,
+        ``.closing``, e.g. :class:`mvbb_ros.geometry.grasps.Grasp`), or a ``(positions, approaches,
         closings)`` triple of (G, 3) arrays.
     :param gripper: the gripper; default :meth:`ParallelJawGripper.for_object` of the mesh's
         diameter.
@@ -887,7 +887,7 @@ def grasp_quality(
     :param mesh: a :class:`GraspTarget`, an Open3D triangle mesh, ``(vertices, triangles)``, or
         a mesh file path. Prepare a :class:`GraspTarget` once when scoring many grasps.
     :param grasp: an object with ``.position``, ``.approach`` and ``.closing`` (for example a
-        :class:`mvbb_ros.grasps.Grasp`), all in the mesh's frame and units.
+        :class:`mvbb_ros.geometry.grasps.Grasp`), all in the mesh's frame and units.
     :param gripper: the gripper; default :meth:`ParallelJawGripper.for_object` of the mesh's
         diameter, with `max_width` and `finger_depth` replacing its values when given.
     :param max_width: maximum opening (mesh units), when `gripper` is not given.
@@ -1294,9 +1294,9 @@ def compare_grasp_sets(
     :param progress: optional callable taking a message string.
     :return: the comparison.
     """
-    from mvbb_ros.decomposition import decompose
-    from mvbb_ros.grasps import grasp_hypotheses
-    from mvbb_ros.mvbb import minimum_bounding_box
+    from mvbb_ros.geometry.decomposition import decompose
+    from mvbb_ros.geometry.fit import minimum_bounding_box
+    from mvbb_ros.geometry.grasps import grasp_hypotheses
 
     def say(message: str) -> None:
         if progress is not None:

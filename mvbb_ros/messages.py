@@ -22,8 +22,8 @@ from typing import Any, TYPE_CHECKING
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
-from mvbb_ros.box import Box, EDGES
-from mvbb_ros.grasps import Grasp
+from mvbb_ros.geometry.box import Box, EDGES
+from mvbb_ros.geometry.grasps import Grasp
 import numpy as np
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 import time
 from typing import Any
 
-from mvbb_ros.box import Box
-from mvbb_ros.decomposition import decompose, Decomposition
 from mvbb_ros.filtering import filter_points, FilterCounts
-from mvbb_ros.grasps import Grasp, grasp_hypotheses
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.decomposition import decompose, Decomposition
+from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
 from mvbb_ros.pointcloud2 import CloudFormatError, read_points
 from mvbb_ros.settings import PipelineSettings
 import numpy as np

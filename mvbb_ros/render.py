@@ -35,13 +35,13 @@ from matplotlib.figure import Figure, SubFigure
 from matplotlib.lines import Line2D
 from matplotlib.text import Annotation
 from mvbb_ros.atomic import atomic_path
-from mvbb_ros.box import EDGES
-from mvbb_ros.mvbb import minimum_bounding_box
+from mvbb_ros.geometry.box import EDGES
+from mvbb_ros.geometry.fit import minimum_bounding_box
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if typing.TYPE_CHECKING:  # Box is only needed for annotations (and ruff and flake8 disagree on
-    from mvbb_ros.box import Box  # the order of 'Box, EDGES' in one import)
+    from mvbb_ros.geometry.box import Box  # the order of 'Box, EDGES' in one import)
 
 FloatArray = NDArray[np.float64]
 

@@ -2,7 +2,7 @@
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from mvbb_ros.box import Box, EDGES, FACE_NAMES, right_handed
+from mvbb_ros.geometry.box import Box, EDGES, FACE_NAMES, right_handed
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

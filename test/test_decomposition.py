@@ -1,4 +1,4 @@
-"""Tests for the fit-and-split decomposition (mvbb_ros.decomposition, paper Sec. III-B..D)."""
+"""Tests for the fit-and-split decomposition (geometry.decomposition, paper Sec. III-B..D)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 import mvbb_ros
-from mvbb_ros.box import Box
-from mvbb_ros.decomposition import ORDERS, STOP_REASONS
-from mvbb_ros.mvbb import minimum_bounding_box
-from mvbb_ros.split import cut_mask, score_cuts
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.decomposition import ORDERS, STOP_REASONS
+from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.split import cut_mask, score_cuts
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

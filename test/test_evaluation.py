@@ -7,9 +7,9 @@ import json
 import math
 
 from mvbb_ros import evaluation
-from mvbb_ros.box import Box
 from mvbb_ros.cli import main
-from mvbb_ros.grasps import grasp_hypotheses
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.grasps import grasp_hypotheses
 import numpy as np
 import open3d as o3d
 import pytest

@@ -1,4 +1,4 @@
-"""Tests for face-approach grasp hypotheses (mvbb_ros.grasps)."""
+"""Tests for face-approach grasp hypotheses (mvbb_ros.geometry.grasps)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from mvbb_ros import Grasp, grasp_hypotheses
-from mvbb_ros.box import Box
-import mvbb_ros.grasps as grasp_module
+from mvbb_ros.geometry.box import Box
+import mvbb_ros.geometry.grasps as grasp_module
 import numpy as np
 import pytest
 from scipy.optimize import linprog
@@ -38,7 +38,7 @@ def all_faces(count: int) -> set[tuple[int, str]]:
 
 @dataclass
 class FakeDecomposition:
-    """Duck-typed stand-in for mvbb_ros.decomposition.Decomposition."""
+    """Duck-typed stand-in for mvbb_ros.geometry.decomposition.Decomposition."""
 
     leaves: list[Box]
     points: np.ndarray
@@ -641,7 +641,7 @@ def test_outermost_centroid_ignores_points_dropped_as_noise():
 
 @pytest.mark.parametrize('gain_threshold', [0.90, 0.98])
 def test_real_bunny_decomposition(shared_data, gain_threshold):
-    decomposition_module = pytest.importorskip('mvbb_ros.decomposition')
+    decomposition_module = pytest.importorskip('mvbb_ros.geometry.decomposition')
     points = np.load(shared_data / 'models' / 'bunny_vertices.npy').astype(np.float64)  # metres
     decomposition = decomposition_module.decompose(points, gain_threshold=gain_threshold)
     leaves = decomposition.leaves

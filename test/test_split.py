@@ -1,4 +1,4 @@
-"""Tests for the split measure theta and the best cut (mvbb_ros.split, paper Sec. III-C)."""
+"""Tests for the split measure theta and the best cut (geometry.split, paper Sec. III-C)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import itertools
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from mvbb_ros import split
-from mvbb_ros.box import Box
+from mvbb_ros.geometry import split
+from mvbb_ros.geometry.box import Box
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

@@ -18,9 +18,9 @@ import sys
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from mvbb_ros.atomic import atomic_path
-from mvbb_ros.box import Box, EDGES
-from mvbb_ros.decomposition import decompose
-from mvbb_ros.grasps import grasp_hypotheses
+from mvbb_ros.geometry.box import Box, EDGES
+from mvbb_ros.geometry.decomposition import decompose
+from mvbb_ros.geometry.grasps import grasp_hypotheses
 from mvbb_ros.render import Panel, render_panels
 import numpy as np
 

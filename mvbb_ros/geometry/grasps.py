@@ -10,8 +10,9 @@ them.
 
 Hypotheses
 ----------
-For box ``i`` and face ``f`` (index into :data:`mvbb_ros.box.FACE_NAMES`: +a, -a, +b, -b, +c, -c,
-where a, b, c are the box axes, the columns of ``Box.rotation``), with outward unit normal ``n``:
+For box ``i`` and face ``f`` (index into :data:`mvbb_ros.geometry.box.FACE_NAMES`: +a, -a, +b, -b,
++c, -c, where a, b, c are the box axes, the columns of ``Box.rotation``), with outward unit normal
+``n``:
 
 * ``position = face_centre + standoff * n``: the pre-grasp pose of the gripper frame origin
   (take it as the TCP, between the fingertips), ``standoff`` off the face centre;
@@ -70,8 +71,8 @@ up to ``tol`` count as touching) and the rim inset, so a neighbour meeting the f
 edge occludes it only when its surface makes less than 45 degrees with the face, and a neighbour
 that overlaps the face by less than ``tol`` at its rim does not occlude it.
 
-Why 0.1 of the middle extent (measured with :func:`mvbb_ros.decomposition.decompose` on the
-shared bunny, Homer, duck, mug and flask vertex models at t = 0.90, 0.94 and 0.98, 15
+Why 0.1 of the middle extent (measured with :func:`mvbb_ros.geometry.decomposition.decompose` on
+the shared bunny, Homer, duck, mug and flask vertex models at t = 0.90, 0.94 and 0.98, 15
 decompositions, 1,020 faces): boxes from a split are fitted separately, so siblings overlap (the
 dense models) or leave a gap of about the sampling step across the cut. The smallest non-zero
 extent is no scale for that: it is ~0 for the flat boxes of planar patches and vertex rings.
@@ -130,16 +131,14 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Literal, overload
 
-from mvbb_ros import box as box_geometry
-from mvbb_ros.box import Box
+from mvbb_ros.arrays import BoolArray, FloatArray
+from mvbb_ros.geometry import box as box_geometry
+from mvbb_ros.geometry.box import Box
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
-
-#: Face order (+a, -a, +b, -b, +c, -c) of :attr:`Grasp.face`, from :mod:`mvbb_ros.box`.
+#: Face order (+a, -a, +b, -b, +c, -c) of :attr:`Grasp.face`, from :mod:`mvbb_ros.geometry.box`.
 FACE_NAMES: tuple[str, ...] = box_geometry.FACE_NAMES
 
 Strategy = Literal['largest', 'smallest', 'outermost', 'nearest']
@@ -180,7 +179,7 @@ class Grasp:
     :ivar closing: (3,) unit direction the fingers close along, a face edge direction.
     :ivar width: opening the gripper needs, the box extent along ``closing`` (boxes' units).
     :ivar box_index: index of the box in the input sequence (or ``Decomposition.leaves``).
-    :ivar face: face index into :data:`mvbb_ros.box.FACE_NAMES` (+a, -a, +b, -b, +c, -c).
+    :ivar face: face index into :data:`mvbb_ros.geometry.box.FACE_NAMES` (+a, -a, +b, -b, +c, -c).
     :ivar roll_deg: roll of the closing direction about ``approach``: 0, 90, 180 or 270.
     :ivar score: strategy score in [0, 1] of the box (higher is better; list order is the rank).
     """
@@ -197,7 +196,7 @@ class Grasp:
 
     @property
     def face_name(self) -> str:
-        """Name of the face, from :data:`mvbb_ros.box.FACE_NAMES` (e.g. ``'-z'``)."""
+        """Name of the face, from :data:`mvbb_ros.geometry.box.FACE_NAMES` (e.g. ``'-z'``)."""
         return FACE_NAMES[self.face]
 
     @property
@@ -501,9 +500,9 @@ def grasp_hypotheses(
     filter and the strategies precisely. All lengths are in the boxes' units (metres for
     sensor data; scale them for the millimetre GraspIt! models).
 
-    :param decomposition_or_boxes: a sequence of :class:`~mvbb_ros.box.Box`, a single box, or a
-        decomposition (any object with ``.leaves``, a list of boxes, and optionally ``.points``,
-        (N, 3), and ``.kept_point_indices``, used for the object centroid).
+    :param decomposition_or_boxes: a sequence of :class:`~mvbb_ros.geometry.box.Box`, a single box,
+        or a decomposition (any object with ``.leaves``, a list of boxes, and optionally
+        ``.points``, (N, 3), and ``.kept_point_indices``, used for the object centroid).
     :param gripper_max_width: maximum opening of the gripper; wider hypotheses are removed
         (default 0.08 m, the Franka Hand).
     :param standoff: distance of the pre-grasp position from the face centre along the outward
@@ -557,7 +556,9 @@ def grasp_hypotheses(
     boxes, points = _leaf_boxes(decomposition_or_boxes)
     for box in boxes:
         if not isinstance(box, Box):
-            raise TypeError(f'leaf boxes must be mvbb_ros.box.Box, got {type(box).__name__}')
+            raise TypeError(
+                f'leaf boxes must be mvbb_ros.geometry.box.Box, got {type(box).__name__}'
+            )
     if not boxes:
         empty = GraspStats(0, 0, 0, 0, 0, 0, 0, 0)
         return ([], empty) if return_stats else []

@@ -33,12 +33,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from mvbb_ros.box import Box
+from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.geometry.box import Box
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.intp]
 
 #: Split measures: ``'area'`` is the paper's 2D projection measure, ``'volume'`` the 3D option.
 SPLIT_MEASURES: tuple[str, ...] = ('area', 'volume')

@@ -18,13 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import itertools
 
+from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial import ConvexHull, QhullError
-
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.intp]
-BoolArray = NDArray[np.bool_]
 
 #: Relative singular value (of the centred points) below which a direction counts as empty.
 RANK_TOLERANCE = 1e-10

@@ -2,8 +2,8 @@
 Minimum-volume bounding box (issue 3) and the geometry it stands on.
 
 Sections: input handling; degenerate and extreme clouds; exact answers on known shapes; the 2D
-rectangles (mvbb_ros.rectangle); the hull and its silhouettes (mvbb_ros.hull); quality on the
-shared reference clouds; properties (hypothesis).
+rectangles (mvbb_ros.geometry.rectangle); the hull and its silhouettes (mvbb_ros.geometry.hull);
+quality on the shared reference clouds; properties (hypothesis).
 """
 
 import json
@@ -12,17 +12,22 @@ from conftest import require_shared_data
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros import mvbb as mvbb_module
-from mvbb_ros.box import Box
-from mvbb_ros.hull import (
+from mvbb_ros.geometry import fit
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.fit import (
+    best_rotations_about,
+    grid_axes,
+    minimum_bounding_box,
+    search_hull,
+)
+from mvbb_ros.geometry.hull import (
     affine_rank,
     column_extremes,
     convex_hull,
     DegenerateHullError,
     interior_cull,
 )
-from mvbb_ros.mvbb import best_rotations_about, grid_axes, minimum_bounding_box, search_hull
-from mvbb_ros.rectangle import convex_hull_2d, min_area_rectangle, min_area_rectangles
+from mvbb_ros.geometry.rectangle import convex_hull_2d, min_area_rectangle, min_area_rectangles
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
@@ -235,7 +240,7 @@ def test_batched_products_and_calipers_find_the_same_rotations(seed):
     hull = convex_hull(points)
     axes = np.vstack([hull.normals, _random_rotation(seed).T])
     volumes, frames = best_rotations_about(hull, axes)
-    expected, _ = mvbb_module._caliper_rotations_about(hull, axes)
+    expected, _ = fit._caliper_rotations_about(hull, axes)
     np.testing.assert_allclose(volumes, expected, rtol=1e-9)
     for frame, volume in zip(frames, volumes, strict=True):
         np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
@@ -432,7 +437,7 @@ def test_the_coreset_search_encloses_every_point_and_keeps_the_volume():
     shell = np.column_stack([np.cos(angle), np.sin(angle), rng.uniform(-2.0, 2.0, 20_000)])
     shell += rng.normal(scale=0.01, size=shell.shape)
     points = shell @ rotation.T * 0.05 + [3.0, -1.0, 0.5]
-    assert len(points) >= mvbb_module.CORESET_MIN_POINTS
+    assert len(points) >= fit.CORESET_MIN_POINTS
     coreset_box = minimum_bounding_box(points)
     exact_box = minimum_bounding_box(points, coreset_cells=0)
     _assert_valid(coreset_box, points)

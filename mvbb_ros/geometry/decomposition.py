@@ -2,9 +2,9 @@
 Fit-and-split MVBB decomposition (paper Sec. III-B to III-D); plain numpy, no ROS import.
 
 :func:`decompose` fits the minimum-volume bounding box (MVBB) of a point cloud, then repeatedly
-cuts a box in two along its best face-parallel cut (:mod:`mvbb_ros.split`), fits an MVBB to each
-part and keeps the split when the volume gain Theta* (eq. 2) is below the gain threshold t. The
-result is a :class:`Decomposition`: the whole tree, the leaf boxes and which points each holds.
+cuts a box in two along its best face-parallel cut (:mod:`mvbb_ros.geometry.split`), fits an MVBB
+to each part and keeps the split when the volume gain Theta* (eq. 2) is below the gain threshold t.
+The result is a :class:`Decomposition`: the whole tree, the leaf boxes and which points each holds.
 
 Known limit of the criterion (measured on the paper's GraspIt! mug, see
 ``benchmarks/decompose.py``): mesh vertices that lie on planar rings with empty layers between
@@ -22,13 +22,12 @@ import json
 import math
 from typing import Any
 
-from mvbb_ros import split as splitting
-from mvbb_ros.box import Box
-from mvbb_ros.mvbb import minimum_bounding_box
+from mvbb_ros.arrays import IndexArray
+from mvbb_ros.geometry import split as splitting
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.fit import minimum_bounding_box
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-IndexArray = NDArray[np.intp]
 
 #: Default gain threshold t (the paper's middle setting).
 DEFAULT_GAIN_THRESHOLD = 0.94
@@ -101,8 +100,8 @@ class DecompositionNode:
     :ivar parent: index of the parent node, None for the root.
     :ivar children: indices of the child nodes, lower side of the cut first; empty unless the
         node was split. A child dropped as noise is listed too (its ``dropped`` is True).
-    :ivar cut: the cut that split this node (see :class:`mvbb_ros.split.Cut`), None when it
-        was not split. The cut that made a node is its parent's ``cut``.
+    :ivar cut: the cut that split this node (see :class:`mvbb_ros.geometry.split.Cut`), None when
+        it was not split. The cut that made a node is its parent's ``cut``.
     :ivar tested_cut: the best cut found and tested for this node (``cut`` when it was split,
         the refused one when it was not); None when no cut was tested.
     :ivar theta: split measure theta of ``tested_cut`` (dimensionless), or None.
@@ -406,8 +405,8 @@ def decompose(
 
     The defaults are the paper's algorithm. The root is the MVBB of all points. A box P is cut
     at the best of its six families of face-parallel grid cuts by the 2D split measure theta
-    (eq. 1, :mod:`mvbb_ros.split`); each part gets its own MVBB (C1 below the cut, C2 above);
-    the split is kept when the volume gain
+    (eq. 1, :mod:`mvbb_ros.geometry.split`); each part gets its own MVBB (C1 below the cut, C2
+    above); the split is kept when the volume gain
 
         Theta* = (V(C1) + V(C2) + V(A minus P)) / (V(P) + V(A minus P))
 
@@ -456,7 +455,7 @@ def decompose(
         off noise does not add a leaf and is still allowed.
     :param seed: passed to every MVBB fit, so the same input and seed give the same result.
     :param grid_cells: grid cells per box axis for the cut positions (>= 2); see
-        :data:`mvbb_ros.split.DEFAULT_GRID_CELLS`.
+        :data:`mvbb_ros.geometry.split.DEFAULT_GRID_CELLS`.
     :param order: ``'volume'`` (default), ``'gain'``, ``'breadth'`` or ``'depth'``; see Processing
         order.
     :return: the decomposition: the tree (``nodes``, ``root``), the leaves in node order with

@@ -12,11 +12,10 @@ from dataclasses import dataclass
 import itertools
 from typing import Any
 
+from mvbb_ros.arrays import FloatArray
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
-
-FloatArray = NDArray[np.float64]
 
 #: Face order used by :meth:`Box.face_centers`, :meth:`Box.face_normals` and the grasp module:
 #: +a, -a, +b, -b, +c, -c, where a, b, c are the box axes (rotation columns 0, 1, 2).

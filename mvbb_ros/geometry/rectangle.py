@@ -10,20 +10,18 @@ vertex extreme in a direction is a binary search (``numpy.searchsorted``) on the
 m) for the hull of ``m`` of ``n`` points, then O(m log m).
 
 :func:`min_area_rectangle` serves one planar cloud; :func:`min_area_rectangles` serves many
-convex polygons in one call, which is how :mod:`mvbb_ros.mvbb` turns a box to its best rotation
-about many axes at once (the rectangle of each projected hull silhouette).
+convex polygons in one call, which is how :mod:`mvbb_ros.geometry.fit` turns a box to its best
+rotation about many axes at once (the rectangle of each projected hull silhouette).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mvbb_ros.arrays import FloatArray, IndexArray
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial import ConvexHull, QhullError
-
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.intp]
 
 _TWO_PI = 2.0 * np.pi
 #: Relative singular value below which planar points are treated as collinear (or coincident).

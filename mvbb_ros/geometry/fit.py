@@ -8,9 +8,10 @@ every point. This module follows that scheme on the convex hull (the box of a po
 box of its hull) and uses exact 2D steps to make each one cheap and vectorised:
 
 * For a fixed axis ``a``, the best rotation of the box about ``a`` is the minimum-area rectangle
-  of the projection along ``a`` (:mod:`mvbb_ros.rectangle`). Its sides are flush with projected
-  *silhouette* edges of the hull (:meth:`mvbb_ros.hull.Hull.silhouette`), so the rectangles of
-  many axes are found at once, by batched rotating calipers on silhouette vertices only.
+  of the projection along ``a`` (:mod:`mvbb_ros.geometry.rectangle`). Its sides are flush with
+  projected *silhouette* edges of the hull (:meth:`mvbb_ros.geometry.hull.Hull.silhouette`), so the
+  rectangles of many axes are found at once, by batched rotating calipers on silhouette vertices
+  only.
 * A minimal box has a face flush with a hull facet, or adjacent faces flush with hull edges
   (O'Rourke 1985). Candidate axes are therefore the facet normals and the normals of planes
   through two hull edges; a cheap lower bound on the volume (hull width times shadow area) ranks
@@ -58,8 +59,9 @@ from __future__ import annotations
 import itertools
 import math
 
-from mvbb_ros.box import Box
-from mvbb_ros.hull import (
+from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.hull import (
     affine_rank,
     column_extremes,
     convex_hull,
@@ -67,12 +69,9 @@ from mvbb_ros.hull import (
     Hull,
     project,
 )
-from mvbb_ros.rectangle import min_area_rectangle, min_area_rectangles
+from mvbb_ros.geometry.rectangle import min_area_rectangle, min_area_rectangles
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.intp]
+from numpy.typing import ArrayLike
 
 #: Relative volume gain below which polishing stops (far below the 1 % quality target).
 _POLISH_TOLERANCE = 1e-5
@@ -163,8 +162,8 @@ def best_rotations_about(hull: Hull, axes: ArrayLike) -> tuple[FloatArray, Float
 
     The rotation about the axis is the minimum-area rectangle of the hull's projection along it,
     which has a side along a projected edge of that projection's 2D hull (Freeman and Shapira
-    1975): the projected *silhouette* of the hull (:meth:`mvbb_ros.hull.Hull.silhouette`). So,
-    for every axis ``a`` and every silhouette edge, the edge's direction ``d`` in the plane
+    1975): the projected *silhouette* of the hull (:meth:`mvbb_ros.geometry.hull.Hull.silhouette`).
+    So, for every axis ``a`` and every silhouette edge, the edge's direction ``d`` in the plane
     across ``a`` and ``u = a x d`` give a rectangle spanned by the silhouette vertices' extents
     along ``d`` and ``u``; the least is exact (up to rounding). All axes are done at once, on
     tables padded to the longest silhouette: one (K, S, 3) by (K, 3, 2S) product per block of
@@ -223,7 +222,7 @@ def _caliper_rotations_about(hull: Hull, axes: ArrayLike) -> tuple[FloatArray, F
     The rotation about the axis is the minimum-area rectangle of the hull's projection along it
     (exact up to rounding). The 2D hull of that projection is the projected silhouette, so only
     silhouette vertices are projected, and all axes go through one batched rotating-calipers call
-    (:func:`mvbb_ros.rectangle.min_area_rectangles`): O(K E) to find the silhouettes, then
+    (:func:`mvbb_ros.geometry.rectangle.min_area_rectangles`): O(K E) to find the silhouettes, then
     O(S log S) for their S vertices in all.
 
     :param hull: convex hull of the points.
@@ -564,8 +563,8 @@ def minimum_bounding_box(
         the PCA axes and the edge-pair normals) in one batched call instead of ranking them.
     :param coreset_cells: clouds of 2,048 points or more are searched on the column extremes of
         a ``coreset_cells``-square grid in their PCA frame (Barequet and Har-Peled's grid
-        coreset, :func:`mvbb_ros.hull.column_extremes`) instead of all their points; the box is
-        still grown to enclose every point. 0 searches the exact hull of all points.
+        coreset, :func:`mvbb_ros.geometry.hull.column_extremes`) instead of all their points; the
+        box is still grown to enclose every point. 0 searches the exact hull of all points.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
