@@ -25,8 +25,8 @@ setup(
     extras_require={'test': ['pytest', 'hypothesis']},
     entry_points={
         'console_scripts': [
-            'decomposer = mvbb_ros.node:main',
-            'mvbb = mvbb_ros.cli:main',
+            'decomposer = mvbb_ros.ros.node:main',
+            'mvbb = mvbb_ros.cli.main:main',
         ],
     },
 )

@@ -33,7 +33,7 @@ import sys
 import time
 
 from mvbb_ros import evaluation
-from mvbb_ros.atomic import atomic_open
+from mvbb_ros.cli.atomic import atomic_open
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]

@@ -4,8 +4,8 @@ Per-frame cost of the whole pipeline on one core, against Open3D's hand-written 
     .venv/bin/python benchmarks/pipeline.py            # about two minutes
     .venv/bin/python benchmarks/pipeline.py --quick    # fewer frames, for a first look
 
-What runs, per frame, is what the node does for one cloud: :func:`mvbb_ros.pipeline.
-process_cloud` (decode, filter, decompose, grasps), :func:`mvbb_ros.messages.output_messages`
+What runs, per frame, is what the node does for one cloud: :func:`mvbb_ros.pipeline.process.
+process_cloud` (decode, filter, decompose, grasps), :func:`mvbb_ros.ros.messages.output_messages`
 (message building) and publishing the messages on a real rclpy node (nobody subscribes, so
 this is serialization and the middleware's write). The decomposition is split into its box fits
 (every call of the minimum-volume box fit, timed by wrapping it) and the rest (the cut search
@@ -20,13 +20,13 @@ or for the float32 -> float64 copy). ``ratio`` is our median total over the chai
 Frames:
 
 - ``camera 640x480``: a 640 x 480 organized frame from the package's virtual depth camera
-  (:mod:`mvbb_ros.synthetic`), close enough that the mug fills most of the view (about 250k of
+  (:mod:`mvbb_ros.cli.synthetic`), close enough that the mug fills most of the view (about 250k of
   the 307k pixels); pixels off the object are NaN, as an organized segmentation delivers them.
   Four noise seeds.
-- ``organized 300k``: :func:`mvbb_ros.synthetic.organized_frame` with 300 000 object points
+- ``organized 300k``: :func:`mvbb_ros.cli.synthetic.organized_frame` with 300 000 object points
   (1214 x 910). Four noise seeds.
 - every real scan in the shared ``scans`` folder and the Bunny's vertices, as float32 clouds;
-- every cloud in the shared bags, read with :class:`mvbb_ros.bag.CloudBag` and deserialized
+- every cloud in the shared bags, read with :class:`mvbb_ros.ros.bag.CloudBag` and deserialized
   into rclpy messages as the node receives them.
 
 Then the scaling: organized frames of 1k to 1M object points, median total per size, and the
@@ -77,7 +77,7 @@ def camera_frame(seed: int, fill: float = 2.0):
     """
     import math
 
-    from mvbb_ros import synthetic
+    from mvbb_ros.cli import synthetic
     import numpy as np
 
     scene = synthetic.place_objects(['mug'], [synthetic.pose_matrix()])
@@ -93,7 +93,7 @@ def camera_frame(seed: int, fill: float = 2.0):
 
 
 def organized_cloud(grid):
-    from mvbb_ros.pointcloud2 import create_cloud_xyz
+    from mvbb_ros.ros.encode import create_cloud_xyz
 
     return create_cloud_xyz(
         grid.reshape(-1, 3), organized_shape=grid.shape[:2], frame_id='camera_optical_frame'
@@ -102,9 +102,9 @@ def organized_cloud(grid):
 
 def build_cases(quick: bool) -> list[tuple[str, list]]:
     """Return (name, [rclpy PointCloud2, ...]) for every case."""
-    from mvbb_ros.bag import CloudBag
-    from mvbb_ros.pointcloud2 import create_cloud_xyz
-    from mvbb_ros.synthetic import organized_frame
+    from mvbb_ros.cli.synthetic import organized_frame
+    from mvbb_ros.ros.bag import CloudBag
+    from mvbb_ros.ros.encode import create_cloud_xyz
     import numpy as np
 
     seeds = range(2 if quick else 4)
@@ -146,7 +146,7 @@ class Bench:
 
     def __init__(self, settings) -> None:
         from mvbb_ros.geometry import decomposition
-        from mvbb_ros.messages import OUTPUT_TYPES
+        from mvbb_ros.ros.messages import OUTPUT_TYPES
         import rclpy
 
         self.settings = settings
@@ -170,8 +170,8 @@ class Bench:
 
     def frame(self, cloud) -> tuple[dict[str, float], object]:
         """Run the node's work on one cloud; return step times (ms, with total) and result."""
-        from mvbb_ros.messages import output_messages
-        from mvbb_ros.pipeline import process_cloud
+        from mvbb_ros.pipeline.process import process_cloud
+        from mvbb_ros.ros.messages import output_messages
 
         self.fit_timer.seconds = 0.0
         start = time.perf_counter()
@@ -212,7 +212,7 @@ class Bench:
 
 def measure(bench: Bench, clouds: list, repeats: int) -> dict:
     """Time every step on `repeats` passes over `clouds` (after a warm-up pass)."""
-    from mvbb_ros.pointcloud2 import read_xyz
+    from mvbb_ros.pipeline.decode import read_xyz
     import numpy as np
 
     decoded = [np.ascontiguousarray(read_xyz(cloud), dtype=np.float64) for cloud in clouds]
@@ -261,7 +261,7 @@ def print_table(rows: list[tuple[str, dict]]) -> None:
 
 
 def scaling(bench: Bench, repeats: int, sizes) -> None:
-    from mvbb_ros.synthetic import organized_frame
+    from mvbb_ros.cli.synthetic import organized_frame
     import numpy as np
 
     print('\n## Scaling with the number of object points (organized frames, ms)\n')
@@ -301,7 +301,7 @@ def main() -> int:
     args = parser.parse_args()
     one_core(args.core)
 
-    from mvbb_ros.settings import PipelineSettings
+    from mvbb_ros.pipeline.settings import PipelineSettings
     import numpy as np
     import open3d as o3d
 

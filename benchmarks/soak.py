@@ -42,8 +42,8 @@ def main() -> int:
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-    from mvbb_ros.pointcloud2 import create_cloud_xyz
-    from mvbb_ros.synthetic import organized_frame
+    from mvbb_ros.cli.synthetic import organized_frame
+    from mvbb_ros.ros.encode import create_cloud_xyz
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2

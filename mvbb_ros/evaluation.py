@@ -1488,7 +1488,7 @@ def plot_quality_space(
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from mvbb_ros.atomic import atomic_path
+    from mvbb_ros.cli.atomic import atomic_path
 
     figure = Figure(figsize=(7.5, 5.5), dpi=120)
     FigureCanvasAgg(figure)

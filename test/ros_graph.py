@@ -12,7 +12,7 @@ import time
 from typing import Any
 
 from geometry_msgs.msg import PoseArray
-from mvbb_ros.node import DecomposerNode
+from mvbb_ros.ros.node import DecomposerNode
 import numpy as np
 import rclpy
 from rclpy.context import Context

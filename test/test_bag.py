@@ -18,19 +18,16 @@ import time
 from builtin_interfaces.msg import Time
 from conftest import require_shared_data
 from geometry_msgs.msg import PoseArray
-from mvbb_ros.bag import (
-    BagError,
-    CloudBag,
-    process_bag,
-    ros_type_name,
-)
-from mvbb_ros.bag_play import wall_offset_s
-from mvbb_ros.cli import main
-from mvbb_ros.messages import output_messages
-from mvbb_ros.pipeline import process_cloud
-from mvbb_ros.pointcloud2 import create_cloud_xyz, read_xyz, to_rosbags_cloud
-from mvbb_ros.progress import ProgressBar
-from mvbb_ros.settings import PipelineSettings, settings_from_mapping
+from mvbb_ros.cli.main import main
+from mvbb_ros.cli.progress import ProgressBar
+from mvbb_ros.pipeline.decode import read_xyz
+from mvbb_ros.pipeline.process import process_cloud
+from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping
+from mvbb_ros.ros.bag import BagError, BagWriter, CloudBag, ros_type_name
+from mvbb_ros.ros.bag_play import wall_offset_s
+from mvbb_ros.ros.encode import create_cloud_xyz, to_rosbags_cloud
+from mvbb_ros.ros.messages import output_messages
+from mvbb_ros.ros.offline import process_bag
 import numpy as np
 import pytest
 import rclpy
@@ -544,7 +541,7 @@ class _Listener:
 
 def _play(*arguments: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, '-m', 'mvbb_ros.cli', 'bag', 'play', *arguments],
+        [sys.executable, '-m', 'mvbb_ros.cli.main', 'bag', 'play', *arguments],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -613,7 +610,7 @@ def test_play_loops_until_sigint_and_exits_zero(tmp_path, listener):
 def test_play_without_subscribers_ends_by_itself(tmp_path):
     bag = write_bag(tmp_path / 'in', [(TOPIC, t, _test_clouds()[0]) for t in BAG_TIMES[:2]])
     result = subprocess.run(
-        [sys.executable, '-m', 'mvbb_ros.cli', 'bag', 'play', str(bag), '--rate', '20']
+        [sys.executable, '-m', 'mvbb_ros.cli.main', 'bag', 'play', str(bag), '--rate', '20']
         + ['--wait-for-subscribers', '0.2'],
         capture_output=True,
         text=True,
@@ -629,12 +626,10 @@ def test_default_settings_are_the_node_defaults():
 
 
 def test_output_is_removed_when_the_writer_fails(tmp_path, sqlite_bag, monkeypatch):
-    import mvbb_ros.bag as bag_module
-
     def explode(*args, **kwargs):
         raise RuntimeError('disk full')
 
-    monkeypatch.setattr(bag_module.BagWriter, 'write', explode)
+    monkeypatch.setattr(BagWriter, 'write', explode)
     with pytest.raises(RuntimeError, match='disk full'):
         process_bag(sqlite_bag, tmp_path / 'out', settings=settings_from_mapping(FAST))
     assert _listing(tmp_path) == []

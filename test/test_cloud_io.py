@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from conftest import require_shared_data
-from mvbb_ros.cloud_io import load_cloud, save_cloud
+from mvbb_ros.cli.cloud_io import load_cloud, save_cloud
 import numpy as np
 import open3d as o3d
 import pytest

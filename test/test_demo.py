@@ -9,7 +9,7 @@ import subprocess
 import sys
 import time
 
-from mvbb_ros.demo import demo_environment
+from mvbb_ros.cli.demo import demo_environment
 import psutil
 import pytest
 
@@ -20,7 +20,7 @@ def test_demo_runs_end_to_end_and_ends_by_itself(tmp_path):
     out = tmp_path / 'out'
     start = time.monotonic()
     result = subprocess.run(
-        [sys.executable, '-m', 'mvbb_ros.cli', 'demo', '--out', str(out), '--frames', '3'],
+        [sys.executable, '-m', 'mvbb_ros.cli.main', 'demo', '--out', str(out), '--frames', '3'],
         capture_output=True,
         text=True,
         timeout=180,
@@ -58,7 +58,7 @@ def test_demo_environment_keeps_what_the_user_set():
 
 @pytest.mark.slow
 def test_offline_demo_still_works(tmp_path):
-    from mvbb_ros.cli import main
+    from mvbb_ros.cli.main import main
 
     assert main(['demo', '--offline', '--out', str(tmp_path), '--object', 'box']) == 0
     assert (tmp_path / 'demo_box.json').exists() and (tmp_path / 'demo_box.png').exists()
@@ -69,10 +69,10 @@ def test_offline_demo_still_works(tmp_path):
 def test_node_process_is_stopped_when_the_demo_is_interrupted(tmp_path):
     """SIGINT while the demo runs: exit code 130 and no decomposer left running."""
     out = tmp_path / 'out'
-    # The installed `mvbb` script, as users run it. Not `python -m mvbb_ros.cli`: there CPython
-    # 3.11 turns a KeyboardInterrupt that was raised inside exec() (a dataclass being created
-    # while a module imports) into a SIGINT exit (-2) even after the demo caught it and exited
-    # with 130; the script's exit code is the one given to sys.exit.
+    # The installed `mvbb` script, as users run it. Not `python -m mvbb_ros.cli.main`: there
+    # CPython 3.11 turns a KeyboardInterrupt that was raised inside exec() (a dataclass being
+    # created while a module imports) into a SIGINT exit (-2) even after the demo caught it and
+    # exited with 130; the script's exit code is the one given to sys.exit.
     mvbb = Path(sys.executable).with_name('mvbb')
     assert mvbb.exists(), f'{mvbb}: the package is installed with its console scripts'
     process = subprocess.Popen(

@@ -7,7 +7,7 @@ import json
 import math
 
 from mvbb_ros import evaluation
-from mvbb_ros.cli import main
+from mvbb_ros.cli.main import main
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.grasps import grasp_hypotheses
 import numpy as np

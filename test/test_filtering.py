@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
-from mvbb_ros import filtering
-from mvbb_ros.filtering import filter_points, voxel_down_sample
+from mvbb_ros.pipeline import filtering
+from mvbb_ros.pipeline.filtering import filter_points, voxel_down_sample
 import numpy as np
 import open3d as o3d
 import pytest

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from builtin_interfaces.msg import Time
-from mvbb_ros.pointcloud2 import create_cloud_xyz
+from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
 from ros_graph import Graph, l_shape_points

@@ -10,7 +10,7 @@ import sys
 import time
 
 from builtin_interfaces.msg import Time
-from mvbb_ros.pointcloud2 import create_cloud_xyz
+from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import math
 
-import mvbb_ros.node
-from mvbb_ros.pointcloud2 import create_cloud_xyz
-from mvbb_ros.settings import (
+from mvbb_ros.pipeline.settings import (
     parse_assignments,
     PipelineSettings,
     settings_from_mapping,
     SPECS,
     validate_setting,
 )
+from mvbb_ros.ros.encode import create_cloud_xyz
+import mvbb_ros.ros.node
 import pytest
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
@@ -109,7 +109,7 @@ def test_node_state_is_unchanged_after_every_refused_change():
 @pytest.mark.ros
 def test_a_fault_inside_processing_is_logged_and_the_next_cloud_processed(monkeypatch):
     calls = {'count': 0}
-    real_process_cloud = mvbb_ros.node.process_cloud
+    real_process_cloud = mvbb_ros.ros.node.process_cloud
 
     def failing_once(cloud, settings):
         calls['count'] += 1
@@ -117,7 +117,7 @@ def test_a_fault_inside_processing_is_logged_and_the_next_cloud_processed(monkey
             raise RuntimeError('injected fault')
         return real_process_cloud(cloud, settings)
 
-    monkeypatch.setattr(mvbb_ros.node, 'process_cloud', failing_once)
+    monkeypatch.setattr(mvbb_ros.ros.node, 'process_cloud', failing_once)
     graph = Graph()
     try:
         cloud = create_cloud_xyz(l_shape_points())

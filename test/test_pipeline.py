@@ -6,9 +6,10 @@ from types import SimpleNamespace
 
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
-from mvbb_ros.pipeline import decode_cloud, process_cloud
-from mvbb_ros.pointcloud2 import CloudFormatError, create_cloud_xyz, read_points, read_xyz
-from mvbb_ros.settings import PipelineSettings
+from mvbb_ros.pipeline.decode import CloudFormatError, read_points, read_xyz
+from mvbb_ros.pipeline.process import decode_cloud, process_cloud
+from mvbb_ros.pipeline.settings import PipelineSettings
+from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
 

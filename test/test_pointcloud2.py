@@ -1,5 +1,5 @@
 """
-Tests of mvbb_ros.pointcloud2: PointCloud2 <-> numpy.
+Tests of the PointCloud2 decoder (pipeline.decode) and encoder (ros.encode).
 
 Clouds are built by a straightforward reference encoder (struct.pack_into, point by point) and
 checked against the values they were built from and against a per-point reference decoder
@@ -21,30 +21,24 @@ from typing import Any
 from conftest import require_shared_data
 from hypothesis import event, given, HealthCheck, settings
 from hypothesis import strategies as st
-from mvbb_ros import pointcloud2
-from mvbb_ros.pointcloud2 import (
-    CloudFormatError,
-    create_cloud_xyz,
-    read_xyz,
-    read_xyz_grid,
-    to_rclpy_cloud,
-    to_rosbags_cloud,
-)
+from mvbb_ros.pipeline import decode
+from mvbb_ros.pipeline.decode import CloudFormatError, read_xyz, read_xyz_grid
+from mvbb_ros.ros.encode import create_cloud_xyz, to_rclpy_cloud, to_rosbags_cloud
 import numpy as np
 import pytest
 
 # PointField datatypes (taken through the module: ruff and flake8 sort INT8/INT16 differently).
 INT8, UINT8, INT16, UINT16 = (
-    pointcloud2.INT8,
-    pointcloud2.UINT8,
-    pointcloud2.INT16,
-    pointcloud2.UINT16,
+    decode.INT8,
+    decode.UINT8,
+    decode.INT16,
+    decode.UINT16,
 )
 INT32, UINT32, FLOAT32, FLOAT64 = (
-    pointcloud2.INT32,
-    pointcloud2.UINT32,
-    pointcloud2.FLOAT32,
-    pointcloud2.FLOAT64,
+    decode.INT32,
+    decode.UINT32,
+    decode.FLOAT32,
+    decode.FLOAT64,
 )
 ALL_DATATYPES = (INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64)
 FLOAT_DATATYPES = (FLOAT32, FLOAT64)

@@ -7,9 +7,9 @@ import os
 
 from matplotlib.figure import Figure
 import matplotlib.image as mpimg
-from mvbb_ros import render
+from mvbb_ros.cli import render
+from mvbb_ros.cli.render import BEST_GRASP_COLOR, BOX_COLORS, Panel, render_boxes, render_panels
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.render import BEST_GRASP_COLOR, BOX_COLORS, Panel, render_boxes, render_panels
 import numpy as np
 import pytest
 

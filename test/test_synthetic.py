@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 import time
 
-from mvbb_ros import synthetic
-from mvbb_ros.synthetic import (
+from mvbb_ros.cli import synthetic
+from mvbb_ros.cli.synthetic import (
     BACKGROUND,
     DepthNoise,
     look_at,

@@ -17,11 +17,11 @@ import sys
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from mvbb_ros.atomic import atomic_path
+from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.cli.render import Panel, render_panels
 from mvbb_ros.geometry.box import Box, EDGES
 from mvbb_ros.geometry.decomposition import decompose
 from mvbb_ros.geometry.grasps import grasp_hypotheses
-from mvbb_ros.render import Panel, render_panels
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -12,12 +12,12 @@ from dataclasses import dataclass, field
 import time
 from typing import Any
 
-from mvbb_ros.filtering import filter_points, FilterCounts
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.pointcloud2 import CloudFormatError, read_points
-from mvbb_ros.settings import PipelineSettings
+from mvbb_ros.pipeline.decode import CloudFormatError, read_points
+from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
+from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -117,7 +117,7 @@ def decode_cloud(cloud: Any) -> NDArray[np.floating]:
     Decode a PointCloud2 (rclpy or rosbags message) to finite (N, 3) points.
 
     float32 when the cloud's x, y, z are float32 (no float64 copy of a whole frame: the filter
-    takes float32 as it is), float64 otherwise; see :func:`mvbb_ros.pointcloud2.read_points`.
+    takes float32 as it is), float64 otherwise; see :func:`mvbb_ros.pipeline.decode.read_points`.
     """
     return read_points(cloud)
 

@@ -29,8 +29,8 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 if TYPE_CHECKING:
-    from mvbb_ros.pipeline import PipelineResult
-    from mvbb_ros.settings import PipelineSettings
+    from mvbb_ros.pipeline.process import PipelineResult
+    from mvbb_ros.pipeline.settings import PipelineSettings
 
 #: Distinct box colours (red, green, blue in 0..1), cycled by box index.
 PALETTE: tuple[tuple[float, float, float], ...] = (

@@ -7,14 +7,14 @@ Topics (relative names, remappable):
   always works on the newest cloud and hears reliable and best-effort publishers alike; the
   read-only parameter ``reliable_input`` makes it reliable with a deep queue for lossless
   evaluation of bags;
-- ``~/boxes`` (visualization_msgs/MarkerArray): the leaf boxes (see :mod:`mvbb_ros.messages`);
+- ``~/boxes`` (visualization_msgs/MarkerArray): the leaf boxes (see :mod:`mvbb_ros.ros.messages`);
 - ``~/tree`` (visualization_msgs/MarkerArray): the non-leaf boxes of the hierarchy;
 - ``~/grasps`` (geometry_msgs/PoseArray): grasp poses, best first;
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): counts and timings, once a second.
 
 Outputs are reliable and stamped with the input header. Every tunable is a declared parameter
-(:mod:`mvbb_ros.settings`); a change is validated, refused with a reason when bad, and the last
-cloud is processed again at once so tuning on a paused bag shows its effect.
+(:mod:`mvbb_ros.pipeline.settings`); a change is validated, refused with a reason when bad, and the
+last cloud is processed again at once so tuning on a paused bag shows its effect.
 """
 
 from __future__ import annotations
@@ -27,15 +27,15 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray
-from mvbb_ros.messages import diagnostic_status, output_messages
-from mvbb_ros.pipeline import PipelineResult, process_cloud
-from mvbb_ros.settings import (
+from mvbb_ros.pipeline.process import PipelineResult, process_cloud
+from mvbb_ros.pipeline.settings import (
     PipelineSettings,
     SettingSpec,
     SPEC_BY_NAME,
     SPECS,
     validate_setting,
 )
+from mvbb_ros.ros.messages import diagnostic_status, output_messages
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,

@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Any
 
-from mvbb_ros.settings import PipelineSettings
+from mvbb_ros.pipeline.settings import PipelineSettings
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -325,7 +325,7 @@ def decompose_and_report(
     seconds = time.perf_counter() - start
     print_report(decomposition, grasps, seconds)
     if json_path is not None:
-        from mvbb_ros.atomic import atomic_open
+        from mvbb_ros.cli.atomic import atomic_open
 
         document = decomposition.to_dict()
         document['grasps'] = [grasp.to_dict() for grasp in grasps]
@@ -333,7 +333,7 @@ def decompose_and_report(
             json.dump(document, handle, indent=2)
         print(f'wrote {json_path}')
     if png_path is not None:
-        from mvbb_ros.render import render_boxes
+        from mvbb_ros.cli.render import render_boxes
 
         render_boxes(
             png_path, decomposition.points, decomposition.leaves, grasps=grasps, title=title
@@ -342,7 +342,7 @@ def decompose_and_report(
 
 
 def _run_decompose(args: argparse.Namespace) -> int:
-    from mvbb_ros.cloud_io import load_cloud
+    from mvbb_ros.cli.cloud_io import load_cloud
 
     points = load_cloud(args.file)
     title = f'{args.file.name}: t = {args.gain_threshold:g}'
@@ -351,7 +351,7 @@ def _run_decompose(args: argparse.Namespace) -> int:
 
 
 def _run_offline_demo(args: argparse.Namespace) -> int:
-    from mvbb_ros.synthetic import segmented_object_cloud
+    from mvbb_ros.cli.synthetic import segmented_object_cloud
 
     points = segmented_object_cloud(args.object, seed=args.seed)
     print(f'demo: synthetic {args.object} seen by a virtual depth camera ({len(points)} points)')
@@ -368,7 +368,7 @@ def _run_offline_demo(args: argparse.Namespace) -> int:
 
 def _demo_assignments(args: argparse.Namespace) -> list[str]:
     """Return the demo's decomposition options (where not the default) and -p as parameters."""
-    from mvbb_ros.settings import defaults
+    from mvbb_ros.pipeline.settings import defaults
 
     values = {
         'gain_threshold': args.gain_threshold,
@@ -392,7 +392,7 @@ def _demo_assignments(args: argparse.Namespace) -> list[str]:
 def _run_demo(args: argparse.Namespace) -> int:
     if args.offline:
         return _run_offline_demo(args)
-    from mvbb_ros.demo import run_demo
+    from mvbb_ros.cli.demo import run_demo
 
     return run_demo(
         args.out, assignments=_demo_assignments(args), frames=args.frames, rate=args.rate
@@ -401,7 +401,7 @@ def _run_demo(args: argparse.Namespace) -> int:
 
 def _settings_from_args(args: argparse.Namespace) -> object:
     """Return PipelineSettings from --params-file and -p (ValueError names a bad one)."""
-    from mvbb_ros.settings import parse_assignments, settings_from_mapping
+    from mvbb_ros.pipeline.settings import parse_assignments, settings_from_mapping
 
     values: dict = {}
     if getattr(args, 'params_file', None) is not None:
@@ -432,8 +432,8 @@ def _run_bag_play(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from mvbb_ros.bag import BagError
-    from mvbb_ros.bag_play import play_bag
+    from mvbb_ros.ros.bag import BagError
+    from mvbb_ros.ros.bag_play import play_bag
 
     stop = threading.Event()
     previous = {
@@ -471,8 +471,9 @@ def _run_bag_play(args: argparse.Namespace) -> int:
 
 
 def _run_bag_process(args: argparse.Namespace) -> int:
-    from mvbb_ros.bag import BagError, format_row, format_totals, process_bag, TABLE_HEADER
-    from mvbb_ros.progress import ProgressBar
+    from mvbb_ros.cli.progress import ProgressBar
+    from mvbb_ros.ros.bag import BagError
+    from mvbb_ros.ros.offline import format_row, format_totals, process_bag, TABLE_HEADER
 
     try:
         settings = _settings_from_args(args)
@@ -604,7 +605,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     target = evaluation.GraspTarget.from_mesh(args.mesh)
     points = None
     if args.points is not None:
-        from mvbb_ros.cloud_io import load_cloud
+        from mvbb_ros.cli.cloud_io import load_cloud
 
         points = load_cloud(args.points)
     comparison = evaluation.compare_grasp_sets(
@@ -625,7 +626,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     print(comparison.describe())
     print(evaluation.format_comparison(comparison, markdown=False))
     if args.json is not None:
-        from mvbb_ros.atomic import atomic_open
+        from mvbb_ros.cli.atomic import atomic_open
 
         with atomic_open(args.json) as handle:
             json.dump(comparison.to_dict(), handle, indent=2)

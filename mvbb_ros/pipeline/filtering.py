@@ -1,9 +1,9 @@
 """
 Point cloud filtering before the box fit: crop, voxel down-sampling, statistical outliers.
 
-Each step can be turned off (see :mod:`mvbb_ros.settings`). Steps run in that order: cropping
-first makes the others cheaper, and outlier statistics are steadier on the evenly spaced voxel
-centroids than on raw sensor points.
+Each step can be turned off (see :mod:`mvbb_ros.pipeline.settings`). Steps run in that order:
+cropping first makes the others cheaper, and outlier statistics are steadier on the evenly spaced
+voxel centroids than on raw sensor points.
 
 Voxel down-sampling: numpy by default, Open3D's as an option
 ----------------------------------------------------------------

@@ -1,7 +1,7 @@
 """
 Play the PointCloud2 messages of a bag onto the live ROS graph (`mvbb bag play`).
 
-Clouds are read with :class:`mvbb_ros.bag.CloudBag` (rosbag2 sqlite3 or MCAP, or ROS 1) and
+Clouds are read with :class:`mvbb_ros.ros.bag.CloudBag` (rosbag2 sqlite3 or MCAP, or ROS 1) and
 published, on their recorded topics, as the ROS 2 serialized bytes the bag holds (no decoding),
 with the recorded timing divided by the rate. The first cloud goes out at once; a cloud recorded
 ``d`` seconds after it goes out ``d / rate`` seconds after it.
@@ -26,8 +26,8 @@ import threading
 import time
 from typing import Any, TextIO
 
-from mvbb_ros.bag import BagCloud, CloudBag
-from mvbb_ros.progress import ProgressBar
+from mvbb_ros.cli.progress import ProgressBar
+from mvbb_ros.ros.bag import BagCloud, CloudBag
 
 #: Default rate of /clock messages, Hz (as ``ros2 bag play --clock``).
 DEFAULT_CLOCK_HZ = 40.0
@@ -144,7 +144,7 @@ def play_bag(
     """
     Publish the clouds of a bag with their recorded timing; return when done or stopped.
 
-    :param path: any bag :class:`~mvbb_ros.bag.CloudBag` reads.
+    :param path: any bag :class:`~mvbb_ros.ros.bag.CloudBag` reads.
     :param topic: the cloud topic to play; None plays every PointCloud2 topic.
     :param rate: playback speed factor (2 plays twice as fast); > 0.
     :param loop: start again at the end, until `stop` is set.
@@ -157,7 +157,7 @@ def play_bag(
     :param log: where messages and the bar go; None means stderr.
     :param on_publish: called after each cloud is published.
     :return: what was played.
-    :raises mvbb_ros.bag.BagError: for a missing or unreadable bag, or a bad topic.
+    :raises mvbb_ros.ros.bag.BagError: for a missing or unreadable bag, or a bad topic.
     :raises ValueError: for a rate or clock rate that is not positive.
     """
     import sys

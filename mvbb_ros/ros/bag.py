@@ -1,20 +1,15 @@
 """
-Bags: read the PointCloud2 messages of any bag, and run the node's pipeline over them offline.
+Bags: read the PointCloud2 messages of any bag, and write messages into a new rosbag2.
 
 Reading (:class:`CloudBag`) works on rosbag2 bags (a directory with ``metadata.yaml``, sqlite3 or
 MCAP storage, or a bare ``.db3``/``.mcap`` file) and on ROS 1 bags (``.bag``), through the
 ``rosbags`` library. Every cloud comes out as :class:`BagCloud`: the ROS 2 (CDR) serialization of
 a ``sensor_msgs/msg/PointCloud2`` and its bag timestamp. ROS 2 bags already hold CDR bytes,
 which are passed on untouched; ROS 1 clouds are converted once (:func:`ros1_cloud_to_cdr`). The
-player publishes those bytes as they are and :func:`process_bag` deserializes them with rclpy,
-so the node, the player and the offline tool all see the same messages.
-
-Processing (:func:`process_bag`) runs :func:`mvbb_ros.pipeline.process_cloud` on every cloud and
-writes :func:`mvbb_ros.messages.output_messages` (what the node publishes) into a new rosbag2 at
-the input's timestamps, optionally with the input clouds, so the result plays in RViz
-(``ros2 bag play``) or Foxglove. The output is written into a temporary directory beside it and
-renamed into place only when complete (:func:`mvbb_ros.atomic.atomic_path`): a failure leaves
-nothing behind.
+player (:mod:`mvbb_ros.ros.bag_play`) publishes those bytes as they are and the offline tool
+(:mod:`mvbb_ros.ros.offline`) deserializes them with rclpy, so the node, the player and the
+offline tool all see the same messages. :class:`BagWriter` writes CDR messages into a new
+rosbag2 (MCAP or sqlite3).
 
 Problems with the input (a missing, truncated or unreadable bag, no PointCloud2, an unknown
 topic) raise :class:`BagError` with a message meant for the user.
@@ -22,20 +17,27 @@ topic) raise :class:`BagError` with a message meant for the user.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
 import functools
 import os
 from pathlib import Path
 import shutil
-import time
 from types import TracebackType
 from typing import Any
 
+from builtin_interfaces.msg import Time
+from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.ros.encode import create_cloud_xyz, to_rclpy_cloud
+from numpy.typing import ArrayLike
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from rosbags.typesys import get_typestore, Stores
+from sensor_msgs.msg import PointCloud2
+
 #: The message type the tools read, as rosbags names it for ROS 1 and ROS 2 bags alike.
 CLOUD_TYPE = 'sensor_msgs/msg/PointCloud2'
-#: Namespace of the output topics: the node's default name, so RViz configs work for both.
-DEFAULT_NAMESPACE = '/decomposer'
 #: rosbag2 metadata version written (the one ROS 2 Jazzy writes and reads).
 ROSBAG2_VERSION = 8
 #: Output storage formats: MCAP is Jazzy's default and opens directly in Foxglove.
@@ -74,9 +76,6 @@ class BagCloud:
 
     def message(self) -> Any:
         """Return the cloud as a new rclpy ``sensor_msgs.msg.PointCloud2``."""
-        from rclpy.serialization import deserialize_message
-        from sensor_msgs.msg import PointCloud2
-
         return deserialize_message(self.cdr, PointCloud2)
 
 
@@ -88,17 +87,12 @@ def ros1_cloud_to_cdr(cloud: Any) -> bytes:
 
     :param cloud: a rosbags (or any duck-typed) ``sensor_msgs/PointCloud2``.
     """
-    from mvbb_ros.pointcloud2 import to_rclpy_cloud
-    from rclpy.serialization import serialize_message
-
     return serialize_message(to_rclpy_cloud(cloud))
 
 
 @functools.lru_cache(maxsize=1)
 def jazzy_typestore() -> Any:
     """Return the rosbags typestore of ROS 2 Jazzy (message definitions and type hashes)."""
-    from rosbags.typesys import get_typestore, Stores
-
     return get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -138,8 +132,6 @@ class CloudBag:
         self.close()
 
     def _open(self) -> None:
-        from rosbags.highlevel import AnyReader
-
         if not self.path.exists():
             raise BagError(f'bag not found: {self.path}')
         if self.path.is_dir() and not (self.path / 'metadata.yaml').exists():
@@ -289,8 +281,6 @@ class BagWriter:
     def __init__(
         self, path: str | os.PathLike[str], *, storage: str = 'mcap', compress: bool = False
     ) -> None:
-        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-
         if storage not in STORAGE_FORMATS:
             raise BagError(f'storage must be one of {", ".join(STORAGE_FORMATS)}, got {storage!r}')
         plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
@@ -332,256 +322,33 @@ class BagWriter:
         self.counts[topic] += 1
 
 
-# Processing -------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ProcessedCloud:
-    """
-    What one cloud of a bag gave; one row of the `mvbb bag process` table.
-
-    :ivar index: position among the processed clouds, from 0.
-    :ivar topic: input topic.
-    :ivar timestamp_ns: the bag timestamp, kept on every output message.
-    :ivar stamp_ns: the cloud header's stamp, nanoseconds (kept in every output header).
-    :ivar frame_id: the cloud header's frame.
-    :ivar points: finite input points.
-    :ivar filtered: points left after filtering.
-    :ivar boxes: leaf boxes.
-    :ivar grasps: grasp poses written.
-    :ivar milliseconds: pipeline time (decode, filter, decompose, grasps).
-    :ivar note: why the outputs are empty (the node's warning), or ''.
-    """
-
-    index: int
-    topic: str
-    timestamp_ns: int
-    stamp_ns: int
-    frame_id: str
-    points: int
-    filtered: int
-    boxes: int
-    grasps: int
-    milliseconds: float
-    note: str = ''
-
-
-@dataclass
-class ProcessSummary:
-    """
-    Totals of one `mvbb bag process` run.
-
-    :ivar rows: one entry per cloud, in bag order.
-    :ivar topics: output topic -> messages written.
-    :ivar wall_seconds: wall-clock time of the whole run (reading, processing, writing).
-    """
-
-    input_path: Path
-    output_path: Path
-    input_topic: str
-    rows: list[ProcessedCloud] = field(default_factory=list)
-    topics: dict[str, int] = field(default_factory=dict)
-    wall_seconds: float = 0.0
-
-    @property
-    def clouds(self) -> int:
-        """Return the number of clouds processed."""
-        return len(self.rows)
-
-    @property
-    def points(self) -> int:
-        """Return the total of finite input points."""
-        return sum(row.points for row in self.rows)
-
-    @property
-    def boxes(self) -> int:
-        """Return the total number of boxes."""
-        return sum(row.boxes for row in self.rows)
-
-    @property
-    def grasps(self) -> int:
-        """Return the total number of grasps."""
-        return sum(row.grasps for row in self.rows)
-
-    @property
-    def milliseconds(self) -> float:
-        """Return the total pipeline time in milliseconds."""
-        return sum(row.milliseconds for row in self.rows)
-
-    @property
-    def empty(self) -> int:
-        """Return how many clouds gave cleared outputs (with a note)."""
-        return sum(1 for row in self.rows if row.note)
-
-    @property
-    def clouds_per_second(self) -> float:
-        """Return the throughput over the whole run (wall clock)."""
-        return self.clouds / self.wall_seconds if self.wall_seconds > 0 else float('inf')
-
-
-#: Called after each cloud with the row, the rclpy cloud and the pipeline result (or None).
-CloudCallback = Callable[[ProcessedCloud, Any, Any], None]
-
-
-def run_pipeline(cloud: Any, settings: Any) -> tuple[Any, str]:
-    """
-    Run the node's pipeline on one rclpy cloud, surviving any failure as the node does.
-
-    :return: ``(result, note)``: the :class:`~mvbb_ros.pipeline.PipelineResult` (None when
-        processing raised) and why the outputs are empty ('' when they are not).
-    """
-    from mvbb_ros.pipeline import process_cloud
-
-    try:
-        result = process_cloud(cloud, settings)
-    except Exception as error:  # the node survives any cloud; so does the offline tool
-        return None, f'processing failed: {type(error).__name__}: {error}'
-    return result, result.warning or ''
-
-
-def _check_output(input_path: Path, output_path: Path, force: bool) -> None:
-    source, target = input_path.resolve(), output_path.resolve()
-    if target == source or source in target.parents or target in source.parents:
-        raise BagError(f'the output {output_path} must not be, contain or be inside the input')
-    if output_path.exists() and not force:
-        raise BagError(f'{output_path} exists already; pass --force to replace it')
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    elif path.exists() or path.is_symlink():
-        path.unlink()
-
-
-def _stamp_ns(header: Any) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
-def process_bag(
-    input_path: str | os.PathLike[str],
-    output_path: str | os.PathLike[str],
+def write_cloud_bag(
+    path: str | os.PathLike[str],
+    topic: str,
+    frame_id: str,
+    clouds: Iterable[tuple[int, ArrayLike]],
     *,
-    settings: Any = None,
-    topic: str | None = None,
-    with_input: bool = False,
-    namespace: str = DEFAULT_NAMESPACE,
     storage: str = 'mcap',
-    compress: bool = False,
-    force: bool = False,
-    on_start: Callable[[int], None] | None = None,
-    on_cloud: CloudCallback | None = None,
-) -> ProcessSummary:
+) -> None:
     """
-    Run the node's pipeline on every cloud of a bag and write the outputs into a new rosbag2.
+    Write (N, 3) point clouds as PointCloud2 messages on `topic` into a new rosbag2.
 
-    Each cloud gives the node's output messages (:func:`mvbb_ros.messages.output_messages`) on
-    ``<namespace>/boxes``, ``<namespace>/tree`` (when ``publish_tree``) and
-    ``<namespace>/grasps``, written at the cloud's bag timestamp and stamped with its header;
-    with `with_input` the cloud itself is written first, on its own topic. Every cloud gives
-    one message per output topic, also when the outputs are cleared (bad cloud).
+    Each cloud is given with its time in nanoseconds, used both as the bag timestamp and as the
+    header stamp. The bag is written atomically and replaces an old one at `path`.
 
-    :param input_path: any bag :class:`CloudBag` reads.
-    :param output_path: the rosbag2 directory to write; written atomically.
-    :param settings: :class:`~mvbb_ros.settings.PipelineSettings`; None for the defaults.
-    :param topic: the cloud topic; None when the bag has exactly one PointCloud2 topic.
-    :param with_input: also write the input clouds.
-    :param namespace: prefix of the output topics.
+    :param path: the rosbag2 directory to write.
+    :param topic: the cloud topic.
+    :param frame_id: the clouds' frame.
+    :param clouds: ``(stamp_ns, points)`` pairs in time order.
     :param storage: ``'mcap'`` or ``'sqlite3'``.
-    :param compress: zstd compression (see :class:`BagWriter`).
-    :param force: replace an existing `output_path`.
-    :param on_start: called with the number of clouds to process, before the first.
-    :param on_cloud: called after each cloud (for tables, progress and pictures).
-    :return: the per-cloud rows and totals.
-    :raises BagError: for a bad input bag or topic, or an output that exists; nothing is
-        written then.
     """
-    from mvbb_ros.atomic import atomic_path
-    from mvbb_ros.messages import output_messages, OUTPUT_TYPES
-    from mvbb_ros.pipeline import process_cloud  # noqa: F401 (imports Open3D before the clock)
-    from mvbb_ros.settings import PipelineSettings
-    from rclpy.serialization import serialize_message
-
-    settings = settings if settings is not None else PipelineSettings()
-    source, target = Path(input_path), Path(output_path)
-    if not namespace.startswith('/') or (namespace.endswith('/') and namespace != '/'):
-        raise BagError(f'the output namespace must start and not end with /, got {namespace!r}')
-    prefix = namespace.rstrip('/')
-    start = time.perf_counter()
-    with CloudBag(source) as bag:
-        cloud_topic = bag.select_topics(topic, single=True)[0]
-        _check_output(source, target, force)
-        summary = ProcessSummary(input_path=source, output_path=target, input_topic=cloud_topic)
-        with atomic_path(target) as tmp, BagWriter(tmp, storage=storage, compress=compress) as out:
-            if with_input:
-                out.add_topic(cloud_topic, CLOUD_TYPE)
-            for suffix, message_class in OUTPUT_TYPES.items():
-                if suffix != 'tree' or settings.publish_tree:
-                    out.add_topic(f'{prefix}/{suffix}', ros_type_name(message_class))
-            if on_start is not None:
-                on_start(bag.count([cloud_topic]))
-            for index, item in enumerate(bag.clouds([cloud_topic])):
-                cloud = item.message()
-                result, note = run_pipeline(cloud, settings)
-                if with_input:
-                    out.write(cloud_topic, item.timestamp_ns, item.cdr)
-                outputs = output_messages(result, cloud.header, settings)
-                for suffix, message in outputs.items():
-                    out.write(f'{prefix}/{suffix}', item.timestamp_ns, serialize_message(message))
-                row = ProcessedCloud(
-                    index=index,
-                    topic=item.topic,
-                    timestamp_ns=item.timestamp_ns,
-                    stamp_ns=_stamp_ns(cloud.header),
-                    frame_id=str(cloud.header.frame_id),
-                    points=0 if result is None else int(result.counts.finite),
-                    filtered=0 if result is None else int(result.counts.inliers),
-                    boxes=0 if result is None else len(result.leaves),
-                    grasps=len(outputs['grasps'].poses),
-                    milliseconds=0.0 if result is None else float(result.total_ms),
-                    note=note,
-                )
-                summary.rows.append(row)
-                if on_cloud is not None:
-                    on_cloud(row, cloud, result)
-            summary.topics = dict(out.counts)
-            if force and target.exists():
-                _remove(target)
-    summary.wall_seconds = time.perf_counter() - start
-    return summary
-
-
-# Reporting --------------------------------------------------------------------------------------
-
-TABLE_HEADER = (
-    f'{"#":>4} {"time_s":>8} {"stamp":>21} {"points":>8} {"filtered":>8} {"boxes":>5} '
-    f'{"grasps":>6} {"ms":>8}  note'
-)
-
-
-def format_row(row: ProcessedCloud, start_ns: int) -> str:
-    """Return one line of the table; `start_ns` is the bag time of the first cloud."""
-    stamp = f'{row.stamp_ns // 1_000_000_000}.{row.stamp_ns % 1_000_000_000:09d}'
-    return (
-        f'{row.index:4d} {(row.timestamp_ns - start_ns) / 1e9:8.3f} {stamp:>21} '
-        f'{row.points:8d} {row.filtered:8d} {row.boxes:5d} {row.grasps:6d} '
-        f'{row.milliseconds:8.1f}  {row.note}'
-    ).rstrip()
-
-
-def format_totals(summary: ProcessSummary) -> list[str]:
-    """Return the totals lines printed under the table."""
-    clouds = summary.clouds
-    mean = summary.milliseconds / clouds if clouds else 0.0
-    lines = [
-        f'total: {clouds} clouds, {summary.points} points, {summary.boxes} boxes, '
-        f'{summary.grasps} grasps, {summary.milliseconds:.1f} ms in the pipeline '
-        f'({mean:.1f} ms per cloud)',
-        f'{summary.clouds_per_second:.2f} clouds/s over {summary.wall_seconds:.2f} s wall '
-        '(reading, processing and writing)',
-    ]
-    if summary.empty:
-        lines.append(f'{summary.empty} of {clouds} clouds gave cleared outputs (see note)')
-    written = ', '.join(f'{topic} ({count})' for topic, count in summary.topics.items())
-    lines.append(f'wrote {summary.output_path}: {written}')
-    return lines
+    target = Path(path)
+    with atomic_path(target) as tmp, BagWriter(tmp, storage=storage) as writer:
+        writer.add_topic(topic, CLOUD_TYPE)
+        for stamp_ns, points in clouds:
+            sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+            stamp = Time(sec=sec, nanosec=nanosec)
+            cloud = create_cloud_xyz(points, frame_id=frame_id, stamp=stamp)
+            writer.write(topic, int(stamp_ns), serialize_message(cloud))
+        if target.exists():
+            shutil.rmtree(target)

@@ -1,0 +1,9 @@
+"""
+Pipeline: one cloud from message to boxes and grasps, and the settings of every step.
+
+No rclpy here (messages are read duck-typed), so the node, the bag tools and the command line
+share it: :mod:`~mvbb_ros.pipeline.decode` (PointCloud2 -> points),
+:mod:`~mvbb_ros.pipeline.filtering` (crop, voxel, outliers), :mod:`~mvbb_ros.pipeline.process`
+(the per-cloud function) and :mod:`~mvbb_ros.pipeline.settings` (every tunable, its default and
+range). Importing this package imports none of them (the filters load Open3D).
+"""
