@@ -32,8 +32,23 @@ import platform
 import sys
 import time
 
-from mvbb_ros import evaluation
 from mvbb_ros.cli.atomic import atomic_open
+from mvbb_ros.evaluation.experiment import (
+    CLAIM_CANDIDATE_FRACTION,
+    CLAIM_QUALITY_FRACTION,
+    compare_grasp_sets,
+    PAPER_THRESHOLDS,
+    QualityComparison,
+)
+from mvbb_ros.evaluation.gripper import (
+    DEFAULT_DEPTH_FACTOR,
+    DEFAULT_WIDTH_FACTOR,
+    ParallelJawGripper,
+)
+from mvbb_ros.evaluation.mesh import GraspTarget
+from mvbb_ros.evaluation.report import format_comparison, plot_quality_space
+from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
+from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
@@ -58,14 +73,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         '--spherical-step',
         type=float,
-        default=evaluation.DEFAULT_SPHERICAL_STEP_DEG,
+        default=DEFAULT_SPHERICAL_STEP_DEG,
         help='spherical grid step, degrees (default 10, the paper; 20 is a quick subsample)',
     )
-    parser.add_argument(
-        '--thresholds', type=float, nargs='+', default=list(evaluation.PAPER_THRESHOLDS)
-    )
-    parser.add_argument('--friction', type=float, default=evaluation.DEFAULT_FRICTION)
-    parser.add_argument('--cone-edges', type=int, default=evaluation.DEFAULT_CONE_EDGES)
+    parser.add_argument('--thresholds', type=float, nargs='+', default=list(PAPER_THRESHOLDS))
+    parser.add_argument('--friction', type=float, default=DEFAULT_FRICTION)
+    parser.add_argument('--cone-edges', type=int, default=DEFAULT_CONE_EDGES)
     parser.add_argument(
         '--contact-radius-factor',
         type=float,
@@ -75,13 +88,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         '--width-factor',
         type=float,
-        default=evaluation.DEFAULT_WIDTH_FACTOR,
+        default=DEFAULT_WIDTH_FACTOR,
         help='gripper opening / object diameter',
     )
     parser.add_argument(
         '--depth-factor',
         type=float,
-        default=evaluation.DEFAULT_DEPTH_FACTOR,
+        default=DEFAULT_DEPTH_FACTOR,
         help='finger depth / object diameter',
     )
     parser.add_argument('--json', type=Path, help='also write every summary row as JSON')
@@ -91,7 +104,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def claim_rows(comparison: evaluation.QualityComparison) -> list[dict]:
+def claim_rows(comparison: QualityComparison) -> list[dict]:
     """Per box set, and for all box sets together: the 90 % / 1 % claim."""
     spherical = comparison.spherical
     rows = []
@@ -108,20 +121,17 @@ def claim_rows(comparison: evaluation.QualityComparison) -> list[dict]:
                 'quality_ratio': ratio,
                 'candidate_ratio': fraction,
                 'holds': bool(
-                    ratio >= evaluation.CLAIM_QUALITY_FRACTION
-                    and fraction <= evaluation.CLAIM_CANDIDATE_FRACTION
+                    ratio >= CLAIM_QUALITY_FRACTION and fraction <= CLAIM_CANDIDATE_FRACTION
                 ),
             }
         )
     return rows
 
 
-def markdown_section(
-    name: str, units: str, comparison: evaluation.QualityComparison, png: str
-) -> str:
+def markdown_section(name: str, units: str, comparison: QualityComparison, png: str) -> str:
     spherical = comparison.spherical
     lines = [f'### {name} ({units})', '', '```', comparison.describe(), '```', '']
-    lines.append(evaluation.format_comparison(comparison))
+    lines.append(format_comparison(comparison))
     lines.append('')
     if spherical is not None:
         counts = spherical.evaluation.status_counts()
@@ -184,17 +194,17 @@ def main(argv=None) -> int:
     sections, claims, records = [], {}, {}
     for name in args.models:
         mesh_file, cloud_file, units = MODELS[name]
-        target = evaluation.GraspTarget.from_mesh(models_dir / mesh_file)
+        target = GraspTarget.from_mesh(models_dir / mesh_file)
         points = np.load(models_dir / cloud_file).astype(np.float64)
         contact_radius = (
             None
             if args.contact_radius_factor is None
             else args.contact_radius_factor * target.diameter
         )
-        gripper = evaluation.ParallelJawGripper.for_object(
+        gripper = ParallelJawGripper.for_object(
             target.diameter, width_factor=args.width_factor, depth_factor=args.depth_factor
         )
-        comparison = evaluation.compare_grasp_sets(
+        comparison = compare_grasp_sets(
             target,
             points,
             name=name,
@@ -207,10 +217,10 @@ def main(argv=None) -> int:
             progress=lambda message: print(message, flush=True),
         )
         print(comparison.describe())
-        print(evaluation.format_comparison(comparison, markdown=False), flush=True)
+        print(format_comparison(comparison, markdown=False), flush=True)
         png_name = f'grasp_quality_{name}.png'
         if not args.no_docs:
-            evaluation.plot_quality_space(comparison, args.out / png_name)
+            plot_quality_space(comparison, args.out / png_name)
         sections.append(markdown_section(name, units, comparison, png_name))
         claims[name] = claim_rows(comparison)
         records[name] = comparison.to_dict() | {'claim': claims[name], 'units': units}

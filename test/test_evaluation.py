@@ -6,8 +6,14 @@ from dataclasses import dataclass
 import json
 import math
 
-from mvbb_ros import evaluation
 from mvbb_ros.cli.main import main
+from mvbb_ros.evaluation.experiment import compare_grasp_sets
+from mvbb_ros.evaluation.gripper import ParallelJawGripper
+from mvbb_ros.evaluation.mesh import center_of_mass, GraspTarget, is_closed
+from mvbb_ros.evaluation.report import format_comparison, plot_quality_space
+from mvbb_ros.evaluation.simulation import evaluate_grasps, grasp_quality
+from mvbb_ros.evaluation.spherical import expected_best_of, spherical_grasps
+from mvbb_ros.evaluation.wrench import contact_quality, wrench_space_quality
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.grasps import grasp_hypotheses
 import numpy as np
@@ -18,9 +24,7 @@ from scipy.spatial.transform import Rotation
 # A unit cube centred on the origin, grasped from above across its +-x faces by a gripper that
 # opens 1.5 and reaches 0.6 deep: the palm stops on the top face (z = 0.5) and the fingers
 # close at half a finger depth below it, z = 0.5 - 0.3 + retreat ... on the face centres' line.
-CUBE_GRIPPER = evaluation.ParallelJawGripper(
-    max_width=1.5, finger_depth=0.6, finger_width=0.1, retreat=0.01
-)
+CUBE_GRIPPER = ParallelJawGripper(max_width=1.5, finger_depth=0.6, finger_width=0.1, retreat=0.01)
 
 
 @dataclass
@@ -44,8 +48,8 @@ def top_grasp(x: float = 0.0, y: float = 0.0, closing=(1.0, 0.0, 0.0)) -> Pose:
 
 
 @pytest.fixture(scope='module')
-def cube() -> evaluation.GraspTarget:
-    return evaluation.GraspTarget.from_mesh(cube_mesh())
+def cube() -> GraspTarget:
+    return GraspTarget.from_mesh(cube_mesh())
 
 
 # Mesh properties ------------------------------------------------------------------------------
@@ -66,12 +70,12 @@ def test_center_of_mass_is_the_solid_centroid_not_the_vertex_mean():
     apex = np.array([[0.0, 0.0, 2.0]])
     verts = np.vstack([base, apex])
     tris = np.array([[0, 2, 1], [0, 3, 2], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
-    centre, method = evaluation.center_of_mass(verts, tris)
+    centre, method = center_of_mass(verts, tris)
     assert method == 'solid'
     np.testing.assert_allclose(centre, [0.0, 0.0, 0.5], atol=1e-12)
     assert verts.mean(axis=0)[2] == pytest.approx(0.4)
     # The winding (inward or outward) does not matter.
-    centre_flipped, _ = evaluation.center_of_mass(verts, tris[:, ::-1])
+    centre_flipped, _ = center_of_mass(verts, tris[:, ::-1])
     np.testing.assert_allclose(centre_flipped, centre, atol=1e-12)
 
 
@@ -82,8 +86,8 @@ def test_open_mesh_uses_the_surface_centroid():
     verts = np.asarray(mesh.vertices)
     centroids = verts[tris].mean(axis=1)
     open_tris = tris[centroids[:, 2] < 0.5 - 1e-9]
-    assert not evaluation.is_closed(open_tris)
-    centre, method = evaluation.center_of_mass(verts, open_tris)
+    assert not is_closed(open_tris)
+    centre, method = center_of_mass(verts, open_tris)
     assert method == 'surface'
     np.testing.assert_allclose(centre, [0.0, 0.0, -0.1], atol=1e-12)
 
@@ -92,7 +96,7 @@ def test_open_mesh_uses_the_surface_centroid():
 
 
 def test_cube_grasped_across_opposite_faces_is_force_closure(cube):
-    quality = evaluation.grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER)
+    quality = grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER)
     assert quality.status == 'grasped'
     assert quality.force_closure
     assert quality.epsilon > 0.0
@@ -105,7 +109,7 @@ def test_cube_grasped_across_opposite_faces_is_force_closure(cube):
 
 
 def test_grasp_that_misses_the_object_is_not_force_closure(cube):
-    quality = evaluation.grasp_quality(cube, top_grasp(x=3.0), gripper=CUBE_GRIPPER)
+    quality = grasp_quality(cube, top_grasp(x=3.0), gripper=CUBE_GRIPPER)
     assert quality.status == 'missed'
     assert not quality.force_closure
     assert quality.epsilon == 0.0 and quality.volume == 0.0
@@ -113,8 +117,8 @@ def test_grasp_that_misses_the_object_is_not_force_closure(cube):
 
 
 def test_fingers_hitting_the_object_while_approaching_is_a_failure(cube):
-    narrow = evaluation.ParallelJawGripper(max_width=0.8, finger_depth=0.6, finger_width=0.1)
-    quality = evaluation.grasp_quality(cube, top_grasp(), gripper=narrow)
+    narrow = ParallelJawGripper(max_width=0.8, finger_depth=0.6, finger_width=0.1)
+    quality = grasp_quality(cube, top_grasp(), gripper=narrow)
     assert quality.status == 'collision'
     assert quality.epsilon == 0.0 and not quality.force_closure
 
@@ -123,28 +127,28 @@ def test_closing_line_off_the_object_has_no_contact():
     # A post just beside the closing line: the palm (0.1 wide, y in [-0.05, 0.05]) lands on it,
     # but the fingers close along x on the line y = 0, which passes next to it (y >= 0.02).
     post = o3d.geometry.TriangleMesh.create_box(0.2, 0.2, 1.0).translate((-0.6, 0.02, -0.5))
-    gripper = evaluation.ParallelJawGripper(max_width=1.5, finger_depth=0.4, finger_width=0.1)
-    quality = evaluation.grasp_quality(post, top_grasp(), gripper=gripper)
+    gripper = ParallelJawGripper(max_width=1.5, finger_depth=0.4, finger_width=0.1)
+    quality = grasp_quality(post, top_grasp(), gripper=gripper)
     assert quality.status == 'no_contact'
     assert quality.epsilon == 0.0
 
 
 def test_two_hard_contacts_are_never_force_closure(cube):
     # Point contacts with friction cannot resist a torque about the line through them.
-    quality = evaluation.grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER, contact_radius=0)
+    quality = grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER, contact_radius=0)
     assert quality.status == 'grasped'
     assert quality.epsilon == 0.0 and quality.volume == 0.0
 
 
 def test_single_contact_has_zero_epsilon():
-    epsilon, volume = evaluation.contact_quality(
+    epsilon, volume = contact_quality(
         [[0.5, 0.0, 0.0]], [[-1.0, 0.0, 0.0]], center=np.zeros(3), scale=1.0, torsion=0.1
     )
     assert epsilon == 0.0 and volume == 0.0
 
 
 def test_no_contact_has_zero_epsilon():
-    epsilon, volume = evaluation.contact_quality(
+    epsilon, volume = contact_quality(
         np.zeros((0, 3)), np.zeros((0, 3)), center=np.zeros(3), scale=1.0
     )
     assert (epsilon, volume) == (0.0, 0.0)
@@ -153,14 +157,14 @@ def test_no_contact_has_zero_epsilon():
 def test_cross_polytope_epsilon_and_volume():
     # The hull of +-e_i in 6D: every facet is at 1 / sqrt(6), the volume is 2^6 / 6!.
     wrenches = np.vstack([np.eye(6), -np.eye(6)])
-    epsilon, volume = evaluation.wrench_space_quality(wrenches)
+    epsilon, volume = wrench_space_quality(wrenches)
     assert epsilon == pytest.approx(1 / math.sqrt(6))
     assert volume == pytest.approx(2**6 / math.factorial(6))
 
 
 def test_origin_outside_the_hull_gives_zero_epsilon_but_a_volume():
     wrenches = np.vstack([np.eye(6), -np.eye(6)]) + np.array([2.0, 0, 0, 0, 0, 0])
-    epsilon, volume = evaluation.wrench_space_quality(wrenches)
+    epsilon, volume = wrench_space_quality(wrenches)
     assert epsilon == 0.0
     assert volume == pytest.approx(2**6 / math.factorial(6))
 
@@ -170,11 +174,9 @@ def test_six_frictionless_face_contacts_of_a_cube_are_not_force_closure_but_with
     # passes through the centre); with friction they hold anything.
     normals = np.vstack([np.eye(3), -np.eye(3)])
     points = -0.5 * normals  # face centres; the inward normal points back to the centre
-    frictionless, _ = evaluation.contact_quality(
-        points, normals, center=np.zeros(3), scale=1.0, friction=0.0
-    )
+    frictionless, _ = contact_quality(points, normals, center=np.zeros(3), scale=1.0, friction=0.0)
     assert frictionless == 0.0
-    with_friction, _ = evaluation.contact_quality(
+    with_friction, _ = contact_quality(
         points, normals, center=np.zeros(3), scale=1.0, friction=0.5
     )
     assert with_friction > 0.0
@@ -213,14 +215,12 @@ def test_epsilon_is_invariant_under_rigid_motion(seed):
         closing=Rotation.from_euler('z', 20, degrees=True).apply([1.0, 0.0, 0.0]),
     )
     # Grasps the bump, 20 degrees off its faces' normals (inside the 26.6-degree cone).
-    gripper = evaluation.ParallelJawGripper(
-        max_width=0.5, finger_depth=0.3, finger_width=0.05, retreat=0.01
-    )
-    base = evaluation.grasp_quality(mesh, grasp, gripper=gripper)
+    gripper = ParallelJawGripper(max_width=0.5, finger_depth=0.3, finger_width=0.05, retreat=0.01)
+    base = grasp_quality(mesh, grasp, gripper=gripper)
     assert base.force_closure
     rotation = Rotation.random(random_state=rng).as_matrix()
     moved_mesh, moved_grasp = transformed(mesh, grasp, rotation, rng.uniform(-5, 5, 3))
-    moved = evaluation.grasp_quality(moved_mesh, moved_grasp, gripper=gripper)
+    moved = grasp_quality(moved_mesh, moved_grasp, gripper=gripper)
     assert moved.status == base.status
     assert moved.epsilon == pytest.approx(base.epsilon, rel=1e-4)
     assert moved.volume == pytest.approx(base.volume, rel=1e-4)
@@ -230,14 +230,12 @@ def test_quality_does_not_depend_on_units():
     # The same object and grasp in metres and in millimetres, the gripper scaled with them.
     mesh = asymmetric_mesh()
     grasp = Pose(np.array([-0.1, 0.0, 1.2]), np.array([0.0, 0.0, -1.0]), np.array([1.0, 0, 0]))
-    in_m = evaluation.GraspTarget.from_mesh(mesh)
+    in_m = GraspTarget.from_mesh(mesh)
     mm_mesh, mm_grasp = transformed(mesh, grasp, np.eye(3), np.zeros(3), scale=1000.0)
-    in_mm = evaluation.GraspTarget.from_mesh(mm_mesh)
-    metres = evaluation.grasp_quality(
-        in_m, grasp, gripper=evaluation.ParallelJawGripper.for_object(in_m.diameter)
-    )
-    millimetres = evaluation.grasp_quality(
-        in_mm, mm_grasp, gripper=evaluation.ParallelJawGripper.for_object(in_mm.diameter)
+    in_mm = GraspTarget.from_mesh(mm_mesh)
+    metres = grasp_quality(in_m, grasp, gripper=ParallelJawGripper.for_object(in_m.diameter))
+    millimetres = grasp_quality(
+        in_mm, mm_grasp, gripper=ParallelJawGripper.for_object(in_mm.diameter)
     )
     assert metres.force_closure
     assert millimetres.epsilon == pytest.approx(metres.epsilon, rel=1e-4)
@@ -246,7 +244,7 @@ def test_quality_does_not_depend_on_units():
 
 def test_more_friction_never_lowers_epsilon(cube):
     values = [
-        evaluation.grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER, friction=mu).epsilon
+        grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER, friction=mu).epsilon
         for mu in (0.2, 0.5, 1.0)
     ]
     assert values == sorted(values)
@@ -254,8 +252,8 @@ def test_more_friction_never_lowers_epsilon(cube):
 
 
 def test_off_centre_grasp_is_worse_than_centred(cube):
-    centred = evaluation.grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER)
-    off = evaluation.grasp_quality(cube, top_grasp(y=0.3), gripper=CUBE_GRIPPER)
+    centred = grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER)
+    off = grasp_quality(cube, top_grasp(y=0.3), gripper=CUBE_GRIPPER)
     assert off.force_closure
     assert off.epsilon < centred.epsilon
 
@@ -265,12 +263,12 @@ def test_off_centre_grasp_is_worse_than_centred(cube):
 
 def test_batch_matches_single_and_prefilter_keeps_epsilon(cube):
     grasps = [top_grasp(), top_grasp(x=3.0), top_grasp(y=0.3), top_grasp(closing=(1, 1, 0))]
-    batch = evaluation.evaluate_grasps(cube, grasps, gripper=CUBE_GRIPPER)
+    batch = evaluate_grasps(cube, grasps, gripper=CUBE_GRIPPER)
     for index, grasp in enumerate(grasps):
-        single = evaluation.grasp_quality(cube, grasp, gripper=CUBE_GRIPPER)
+        single = grasp_quality(cube, grasp, gripper=CUBE_GRIPPER)
         assert batch.item(index).epsilon == single.epsilon
         assert batch.item(index).status == single.status
-    fast = evaluation.evaluate_grasps(cube, grasps, gripper=CUBE_GRIPPER, closure_prefilter=True)
+    fast = evaluate_grasps(cube, grasps, gripper=CUBE_GRIPPER, closure_prefilter=True)
     np.testing.assert_array_equal(fast.epsilon, batch.epsilon)
     closure = batch.force_closure
     np.testing.assert_array_equal(fast.volume[closure], batch.volume[closure])
@@ -279,7 +277,7 @@ def test_batch_matches_single_and_prefilter_keeps_epsilon(cube):
 
 def test_spherical_grasps_match_the_paper_count_and_geometry():
     centre = np.array([1.0, 2.0, 3.0])
-    sphere = evaluation.spherical_grasps(centre, 2.0, 10)
+    sphere = spherical_grasps(centre, 2.0, 10)
     assert len(sphere) == 22104  # the paper's count
     offsets = sphere.positions - centre
     np.testing.assert_allclose(np.linalg.norm(offsets, axis=1), 2.0)
@@ -290,17 +288,17 @@ def test_spherical_grasps_match_the_paper_count_and_geometry():
     )
     poses = np.round(np.hstack([sphere.positions, sphere.closings]), 9)
     assert len(np.unique(poses, axis=0)) == len(sphere)
-    assert len(evaluation.spherical_grasps(centre, 1.0, 20)) == 2 * 18 + 8 * 18 * 18
+    assert len(spherical_grasps(centre, 1.0, 20)) == 2 * 18 + 8 * 18 * 18
     with pytest.raises(ValueError, match='divide 180'):
-        evaluation.spherical_grasps(centre, 1.0, 7)
+        spherical_grasps(centre, 1.0, 7)
 
 
 def test_root_box_grasps_on_a_cube_are_all_force_closure(cube):
     box = Box(center=np.zeros(3), rotation=np.eye(3), extents=np.ones(3))
-    gripper = evaluation.ParallelJawGripper.for_object(cube.diameter)
+    gripper = ParallelJawGripper.for_object(cube.diameter)
     grasps = grasp_hypotheses([box], gripper_max_width=gripper.max_width, standoff=0.1)
     assert len(grasps) == 24
-    result = evaluation.evaluate_grasps(cube, grasps, gripper=gripper)
+    result = evaluate_grasps(cube, grasps, gripper=gripper)
     assert np.all(result.force_closure)
     # The cube's symmetry: every face grasp scores the same.
     np.testing.assert_allclose(result.epsilon, result.epsilon[0], rtol=1e-5)
@@ -308,15 +306,13 @@ def test_root_box_grasps_on_a_cube_are_all_force_closure(cube):
 
 def test_bad_arguments_are_refused(cube):
     with pytest.raises(ValueError):
-        evaluation.ParallelJawGripper(max_width=0.0, finger_depth=1.0)
+        ParallelJawGripper(max_width=0.0, finger_depth=1.0)
     with pytest.raises(ValueError):
-        evaluation.grasp_quality(
-            cube, Pose(np.zeros(3), np.array([0, 0, -1.0]), np.array([0, 0, 1.0]))
-        )
+        grasp_quality(cube, Pose(np.zeros(3), np.array([0, 0, -1.0]), np.array([0, 0, 1.0])))
     with pytest.raises(ValueError):
-        evaluation.grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER, max_width=1.0)
+        grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER, max_width=1.0)
     with pytest.raises(TypeError):
-        evaluation.GraspTarget.from_mesh(42)
+        GraspTarget.from_mesh(42)
 
 
 # Comparison, report, plot, command ------------------------------------------------------------
@@ -329,9 +325,7 @@ def l_shape_mesh() -> o3d.geometry.TriangleMesh:
 
 
 def test_compare_grasp_sets_table_and_plot(tmp_path):
-    comparison = evaluation.compare_grasp_sets(
-        l_shape_mesh(), name='L', thresholds=(0.9,), spherical_step=45
-    )
+    comparison = compare_grasp_sets(l_shape_mesh(), name='L', thresholds=(0.9,), spherical_step=45)
     names = [result.name for result in comparison.sets]
     assert names == ['spherical', 'root box', 't=0.90']
     assert comparison.sets[1].candidates == 24
@@ -339,10 +333,10 @@ def test_compare_grasp_sets_table_and_plot(tmp_path):
     assert rows[0]['candidates'] == 2 * 8 + 3 * 8 * 8
     for row in rows[1:]:
         assert 'holds' in row and 'quality_ratio' in row
-    table = evaluation.format_comparison(comparison)
+    table = format_comparison(comparison)
     assert table.count('\n') == 1 + len(rows)
     json.dumps(comparison.to_dict())  # JSON-ready
-    path = evaluation.plot_quality_space(comparison, tmp_path / 'fig.png')
+    path = plot_quality_space(comparison, tmp_path / 'fig.png')
     assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert [p.name for p in tmp_path.iterdir()] == ['fig.png']  # no temporary left behind
 
@@ -381,10 +375,10 @@ def test_expected_best_of_matches_simulation():
     rng = np.random.default_rng(0)
     values = rng.random(40)
     simulated = np.mean([rng.choice(values, 5, replace=False).max() for _ in range(20000)])
-    assert evaluation.expected_best_of(values, 5) == pytest.approx(simulated, abs=5e-3)
-    assert evaluation.expected_best_of(values, 1) == pytest.approx(values.mean())
-    assert evaluation.expected_best_of(values, 40) == pytest.approx(values.max())
-    assert evaluation.expected_best_of([], 3) == 0.0
+    assert expected_best_of(values, 5) == pytest.approx(simulated, abs=5e-3)
+    assert expected_best_of(values, 1) == pytest.approx(values.mean())
+    assert expected_best_of(values, 40) == pytest.approx(values.max())
+    assert expected_best_of([], 3) == 0.0
 
 
 def test_targets_from_every_mesh_form(tmp_path, cube):
@@ -399,11 +393,11 @@ def test_targets_from_every_mesh_form(tmp_path, cube):
         str(path),
     ]
     for form in forms:
-        target = evaluation.GraspTarget.from_mesh(form)
-        quality = evaluation.grasp_quality(target, top_grasp(), gripper=CUBE_GRIPPER)
+        target = GraspTarget.from_mesh(form)
+        quality = grasp_quality(target, top_grasp(), gripper=CUBE_GRIPPER)
         assert quality.epsilon == pytest.approx(
-            evaluation.grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER).epsilon, rel=1e-6
+            grasp_quality(cube, top_grasp(), gripper=CUBE_GRIPPER).epsilon, rel=1e-6
         )
-    assert evaluation.GraspTarget.from_mesh(cube) is cube
+    assert GraspTarget.from_mesh(cube) is cube
     with pytest.raises(FileNotFoundError):
-        evaluation.GraspTarget.from_mesh(tmp_path / 'missing.ply')
+        GraspTarget.from_mesh(tmp_path / 'missing.ply')

@@ -15,6 +15,13 @@ import sys
 import time
 from typing import Any
 
+from mvbb_ros.evaluation.gripper import (
+    DEFAULT_DEPTH_FACTOR,
+    DEFAULT_WIDTH_FACTOR,
+    ParallelJawGripper,
+)
+from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
+from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
 from mvbb_ros.pipeline.settings import PipelineSettings
 
 EXIT_OK = 0
@@ -527,14 +534,6 @@ def _run_bag_process(args: argparse.Namespace) -> int:
 
 def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:
     """Add `mvbb evaluate` (grasp quality, paper Fig. 6; see mvbb_ros.evaluation)."""
-    from mvbb_ros.evaluation import (
-        DEFAULT_CONE_EDGES,
-        DEFAULT_DEPTH_FACTOR,
-        DEFAULT_FRICTION,
-        DEFAULT_SPHERICAL_STEP_DEG,
-        DEFAULT_WIDTH_FACTOR,
-    )
-
     evaluate = commands.add_parser(
         'evaluate',
         help='score box-face grasps against spherical grasps on a mesh (paper Fig. 6)',
@@ -600,19 +599,22 @@ def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
-    from mvbb_ros import evaluation
+    # Deferred: the evaluation loads Open3D and matplotlib, which `mvbb --help` does not need.
+    from mvbb_ros.evaluation.experiment import compare_grasp_sets
+    from mvbb_ros.evaluation.mesh import GraspTarget
+    from mvbb_ros.evaluation.report import format_comparison, plot_quality_space
 
-    target = evaluation.GraspTarget.from_mesh(args.mesh)
+    target = GraspTarget.from_mesh(args.mesh)
     points = None
     if args.points is not None:
         from mvbb_ros.cli.cloud_io import load_cloud
 
         points = load_cloud(args.points)
-    comparison = evaluation.compare_grasp_sets(
+    comparison = compare_grasp_sets(
         target,
         points,
         name=args.mesh.stem,
-        gripper=evaluation.ParallelJawGripper.for_object(
+        gripper=ParallelJawGripper.for_object(
             target.diameter, width_factor=args.width_factor, depth_factor=args.depth_factor
         ),
         thresholds=args.thresholds,
@@ -624,7 +626,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         progress=lambda message: print(message, file=sys.stderr),
     )
     print(comparison.describe())
-    print(evaluation.format_comparison(comparison, markdown=False))
+    print(format_comparison(comparison, markdown=False))
     if args.json is not None:
         from mvbb_ros.cli.atomic import atomic_open
 
@@ -632,7 +634,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
             json.dump(comparison.to_dict(), handle, indent=2)
         print(f'wrote {args.json}')
     if args.png is not None:
-        evaluation.plot_quality_space(comparison, args.png)
+        plot_quality_space(comparison, args.png)
         print(f'wrote {args.png}')
     return EXIT_OK
 

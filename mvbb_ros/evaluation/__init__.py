@@ -1,0 +1,13 @@
+"""
+Evaluation: how good are the grasps? Our own simulator of the paper's Figure 6 experiment.
+
+A parallel-jaw gripper on a triangle mesh, by Open3D ray casting, scored with wrench-space
+measures, against the paper's spherical baseline. One module per idea, in the order they build on
+each other: :mod:`~mvbb_ros.evaluation.mesh` (the object), :mod:`~mvbb_ros.evaluation.gripper`
+(the hand), :mod:`~mvbb_ros.evaluation.wrench` (epsilon and V of contacts),
+:mod:`~mvbb_ros.evaluation.simulation` (approach, retreat, close),
+:mod:`~mvbb_ros.evaluation.spherical` (the baseline), :mod:`~mvbb_ros.evaluation.experiment`
+(the comparison) and :mod:`~mvbb_ros.evaluation.report` (tables and plots). The protocol is
+written out in ``docs/evaluation_protocol.md``; the results are in ``docs/grasp_quality.md``.
+Nothing here is taken from GraspIt! or other grasp libraries.
+"""
