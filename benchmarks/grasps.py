@@ -17,7 +17,7 @@ import sys
 import time
 
 from mvbb_ros.geometry.decomposition import decompose
-from mvbb_ros.geometry.grasps import grasp_hypotheses
+from mvbb_ros.geometry.grasps import grasp_filter_counts, grasp_hypotheses
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -49,15 +49,11 @@ def main() -> int:
         plane = np.array([*UP, -float(np.min(points @ UP))])
         for threshold in THRESHOLDS:
             decomposition = decompose(points, gain_threshold=threshold)
+            options = {'gripper_max_width': 0.08, 'standoff': 0.05, 'support_plane': plane}
             start = time.perf_counter()
-            grasps, stats = grasp_hypotheses(
-                decomposition,
-                gripper_max_width=0.08,
-                standoff=0.05,
-                support_plane=plane,
-                return_stats=True,
-            )
+            grasps = grasp_hypotheses(decomposition, **options)
             milliseconds = (time.perf_counter() - start) * 1e3
+            stats = grasp_filter_counts(decomposition, **options)
             assert len(grasps) == stats.after_support
             print(
                 f'{name:<6} {threshold:5.2f} {stats.boxes:5d} {stats.hypotheses:5d} '

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import itertools
 
 from hypothesis import given, settings
@@ -10,7 +9,13 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from mvbb_ros import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.decomposition import (
+    Decomposition,
+    DecompositionNode,
+    DecompositionSettings,
+)
 import mvbb_ros.geometry.grasps as grasp_module
+from mvbb_ros.geometry.grasps import grasp_filter_counts
 import numpy as np
 import pytest
 from scipy.optimize import linprog
@@ -36,12 +41,36 @@ def all_faces(count: int) -> set[tuple[int, str]]:
     return {(box, name) for box in range(count) for name in FACE_NAMES}
 
 
-@dataclass
-class FakeDecomposition:
-    """Duck-typed stand-in for mvbb_ros.geometry.decomposition.Decomposition."""
+def decomposition_of(
+    leaves: list[Box], points: np.ndarray, kept_point_indices: list[int] | None = None
+) -> Decomposition:
+    """
+    Return a Decomposition with the given leaf boxes over `points` (a hand-made tree).
 
-    leaves: list[Box]
-    points: np.ndarray
+    The root holds every point; the first leaf holds the kept points (all of them unless
+    `kept_point_indices` says which), the other leaves none, and a dropped child the rest.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    everything = np.arange(len(points))
+    kept = everything if kept_point_indices is None else np.asarray(kept_point_indices)
+    parts = [(box, kept if index == 0 else np.empty(0, dtype=np.intp), False)
+             for index, box in enumerate(leaves)]  # fmt: skip
+    dropped = np.setdiff1d(everything, kept)
+    if len(dropped):
+        parts.append((leaves[0], dropped, True))
+
+    def node(index, box, indices, parent, children=(), dropped=False):
+        return DecompositionNode(
+            index=index, box=box, point_indices=np.asarray(indices, dtype=np.intp),
+            parent=parent, children=children, cut=None, tested_cut=None, theta=None, gain=None,
+            depth=0 if parent is None else 1, dropped=dropped,
+            stop_reason=None if children else ('dropped' if dropped else 'gain'),
+        )  # fmt: skip
+
+    children = tuple(range(1, len(parts) + 1))
+    nodes = [node(0, leaves[0], everything, None, children)]
+    nodes += [node(i, box, part, 0, dropped=gone) for i, (box, part, gone) in enumerate(parts, 1)]
+    return Decomposition(points=points, nodes=tuple(nodes), settings=DecompositionSettings())
 
 
 # Hypothesis strategies ---------------------------------------------------------------------------
@@ -70,8 +99,8 @@ def test_one_box_gives_24_hypotheses_at_standoff_along_negative_normals():
         extents=[0.04, 0.06, 0.1],
     )
     standoff = 0.07
-    grasps, stats = grasp_hypotheses([box], gripper_max_width=WIDE, standoff=standoff,
-                                     return_stats=True)  # fmt: skip
+    grasps = grasp_hypotheses([box], gripper_max_width=WIDE, standoff=standoff)
+    stats = grasp_filter_counts([box], gripper_max_width=WIDE, standoff=standoff)
     assert len(grasps) == HYPOTHESES_PER_BOX == 24
     assert stats.hypotheses == stats.after_occlusion == stats.after_support == 24
     normals, centers = box.face_normals(), box.face_centers()
@@ -95,7 +124,7 @@ def test_one_box_gives_24_hypotheses_at_standoff_along_negative_normals():
 
 def test_roll_turns_the_closing_direction_about_the_approach():
     box = Box(center=[0, 0, 0], rotation=np.eye(3), extents=[0.02, 0.05, 0.07])
-    grasps = grasp_hypotheses(box, gripper_max_width=WIDE)
+    grasps = grasp_hypotheses([box], gripper_max_width=WIDE)
     by_key = {(grasp.face, grasp.roll_deg): grasp for grasp in grasps}
     for face in range(6):
         base = by_key[(face, 0)]
@@ -134,8 +163,8 @@ def test_quaternions_are_unit_and_map_gripper_axes_to_approach_and_closing(appro
 
 def test_both_conventions_give_the_same_hypotheses_with_different_orientations():
     box = Box(center=[0, 0, 0], rotation=np.eye(3), extents=[0.03, 0.05, 0.08])
-    along_z = grasp_hypotheses(box, gripper_max_width=WIDE, approach_axis='z')
-    along_x = grasp_hypotheses(box, gripper_max_width=WIDE, approach_axis='x')
+    along_z = grasp_hypotheses([box], gripper_max_width=WIDE, approach_axis='z')
+    along_x = grasp_hypotheses([box], gripper_max_width=WIDE, approach_axis='x')
     for first, second in zip(along_z, along_x, strict=True):
         assert (first.face, first.roll_deg) == (second.face, second.roll_deg)
         np.testing.assert_array_equal(first.position, second.position)
@@ -152,7 +181,8 @@ def test_both_conventions_give_the_same_hypotheses_with_different_orientations()
 def test_two_touching_boxes_lose_exactly_their_touching_faces():
     lower = axis_box([0, 0, 0], [0.1, 0.06, 0.04])
     upper = axis_box([0.02, 0.01, 0.04], [0.08, 0.05, 0.09])  # sits on lower's top, smaller
-    grasps, stats = grasp_hypotheses([lower, upper], gripper_max_width=WIDE, return_stats=True)
+    grasps = grasp_hypotheses([lower, upper], gripper_max_width=WIDE)
+    stats = grasp_filter_counts([lower, upper], gripper_max_width=WIDE)
     assert face_set(grasps) == all_faces(2) - {(0, '+z'), (1, '-z')}
     assert stats.faces_unoccluded == 10
     assert stats.after_occlusion == len(grasps) == 40
@@ -239,7 +269,8 @@ def test_width_filter_removes_exactly_the_closings_along_too_long_edges():
         rotation=Rotation.from_euler('x', 30, degrees=True).as_matrix(),
         extents=[0.03, 0.08, 0.12],
     )
-    grasps, stats = grasp_hypotheses([box], gripper_max_width=0.08, return_stats=True)
+    grasps = grasp_hypotheses([box], gripper_max_width=0.08)
+    stats = grasp_filter_counts([box], gripper_max_width=0.08)
     # Every face keeps its closings along a (0.03) and b (0.08, equal to the limit: kept).
     assert stats.after_occlusion == 24
     assert stats.after_width == len(grasps) == 16
@@ -256,9 +287,8 @@ def test_up_direction_removes_only_the_bottom_face_even_when_tilted():
     for tilt in (0.0, 20.0, 30.0):
         rotation = Rotation.from_euler('xy', [tilt, tilt / 2], degrees=True).as_matrix()
         box = Box(center=[0, 0, 0.5], rotation=rotation, extents=[0.04, 0.05, 0.06])
-        grasps, stats = grasp_hypotheses(
-            [box], gripper_max_width=WIDE, up=[0, 0, 2.0], return_stats=True
-        )
+        grasps = grasp_hypotheses([box], gripper_max_width=WIDE, up=[0, 0, 2.0])
+        stats = grasp_filter_counts([box], gripper_max_width=WIDE, up=[0, 0, 2.0])
         bottom = FACE_NAMES[int(np.argmin(box.face_normals() @ [0, 0, 1]))]
         assert face_set(grasps) == all_faces(1) - {(0, bottom)}, tilt
         assert stats.after_width == 24 and stats.after_support == 20
@@ -274,13 +304,13 @@ def test_approach_elevation_limit_is_applied_exactly():
     )
     elevations = {
         grasp.face_name: np.degrees(np.arcsin(grasp.approach[2]))
-        for grasp in grasp_hypotheses(box, gripper_max_width=WIDE)
+        for grasp in grasp_hypotheses([box], gripper_max_width=WIDE)
     }
     upward = {name for name, elevation in elevations.items() if elevation > 25.0}
     assert len(upward) == 2  # one at 30 degrees, the bottom face at 60 degrees
     for limit, removed in ((20.0, upward), (45.0, {n for n in upward if elevations[n] > 45})):
         grasps = grasp_hypotheses(
-            box, gripper_max_width=WIDE, up=[0, 0, 1], max_approach_elevation_deg=limit
+            [box], gripper_max_width=WIDE, up=[0, 0, 1], max_approach_elevation_deg=limit
         )
         assert face_set(grasps) == all_faces(1) - {(0, name) for name in removed}
 
@@ -289,9 +319,8 @@ def test_approach_elevation_limit_is_applied_exactly():
 def test_support_plane_removes_bottom_face_and_fingers_below_the_clearance(lift, expected):
     # Box resting on (lift = 0) or hovering above the plane z = 0.
     box = axis_box([0, 0, lift], [0.04, 0.05, lift + 0.06])
-    grasps, stats = grasp_hypotheses(
-        [box], gripper_max_width=WIDE, support_plane=[0, 0, 3.0, 0.0], return_stats=True
-    )
+    grasps = grasp_hypotheses([box], gripper_max_width=WIDE, support_plane=[0, 0, 3.0, 0.0])
+    stats = grasp_filter_counts([box], gripper_max_width=WIDE, support_plane=[0, 0, 3.0, 0.0])
     assert stats.after_width == 24 and stats.after_support == len(grasps) == expected
     assert (0, '-z') not in face_set(grasps)
     vertical_closings = [grasp for grasp in grasps if abs(grasp.closing[2]) > 0.5]
@@ -326,11 +355,11 @@ def test_clearance_removes_a_low_standoff_position():
         extents=[0.04, 0.05, 0.04],
     )
     grasps = grasp_hypotheses(
-        box, gripper_max_width=WIDE, standoff=0.1, support_plane=[0, 0, 1, 0]
+        [box], gripper_max_width=WIDE, standoff=0.1, support_plane=[0, 0, 1, 0]
     )
     for grasp in grasps:
         assert grasp.position[2] >= 0.01
-    no_clearance = grasp_hypotheses(box, gripper_max_width=WIDE, standoff=0.1, up=[0, 0, 1])
+    no_clearance = grasp_hypotheses([box], gripper_max_width=WIDE, standoff=0.1, up=[0, 0, 1])
     assert {g.face_name for g in no_clearance} - {g.face_name for g in grasps}
 
 
@@ -379,7 +408,7 @@ def test_nearest_uses_the_sensor_origin_and_outermost_the_decomposition_points()
     assert box_order(grasps) == [1, 3, 2, 0]
     # Points concentrated at x = 0.53 put the centroid inside box 1: box 0 is then outermost.
     points = np.array([[0.53, 0.03, 0.03]] * 10 + [[0.02, 0.02, 0.02]])
-    decomposition = FakeDecomposition(leaves=boxes, points=points)
+    decomposition = decomposition_of(boxes, points)
     outer = grasp_hypotheses(decomposition, gripper_max_width=WIDE, strategy='outermost')
     centroid = points.mean(axis=0)
     distances = [np.linalg.norm(box.center - centroid) for box in boxes]
@@ -401,9 +430,11 @@ def test_scores_do_not_depend_on_the_filters():
 
 def test_decomposition_leaves_and_empty_input():
     box = axis_box([0, 0, 0], [0.02, 0.03, 0.04])
-    decomposition = FakeDecomposition(leaves=[box], points=box.corners())
+    decomposition = decomposition_of([box], box.corners())
+    assert decomposition.leaves == [box]
     assert len(grasp_hypotheses(decomposition)) == len(grasp_hypotheses([box])) == 24
-    grasps, stats = grasp_hypotheses([], return_stats=True)
+    grasps = grasp_hypotheses([])
+    stats = grasp_filter_counts([])
     assert grasps == [] and stats.hypotheses == 0 and stats.after_support == 0
 
 
@@ -430,14 +461,26 @@ def test_non_box_input_raises_type_error():
         grasp_hypotheses(3.0)
     with pytest.raises(TypeError):
         grasp_hypotheses([(0, 0, 0)])
+    with pytest.raises(TypeError, match='sequence of Box'):
+        grasp_hypotheses(axis_box([0, 0, 0], [1, 1, 1]))  # one box: pass [box]
+
+
+def test_max_grasps_keeps_the_best_and_does_not_change_the_counts():
+    boxes = strategy_scene()
+    every = grasp_hypotheses(boxes, gripper_max_width=WIDE)
+    best = grasp_hypotheses(boxes, gripper_max_width=WIDE, max_grasps=5)
+    assert [repr(g) for g in best] == [repr(g) for g in every[:5]]
+    stats = grasp_filter_counts(boxes, gripper_max_width=WIDE, max_grasps=5)
+    assert stats.after_support == len(every) > 5
+    with pytest.raises(ValueError, match='max_grasps'):
+        grasp_hypotheses(boxes, max_grasps=-1)
 
 
 def test_stats_count_each_filter_in_order():
     lower = axis_box([0, 0, 0], [0.1, 0.06, 0.04])
     upper = axis_box([0.02, 0.01, 0.04], [0.08, 0.05, 0.09])
-    grasps, stats = grasp_hypotheses(
-        [lower, upper], gripper_max_width=0.07, up=[0, 0, 1], return_stats=True
-    )
+    grasps = grasp_hypotheses([lower, upper], gripper_max_width=0.07, up=[0, 0, 1])
+    stats = grasp_filter_counts([lower, upper], gripper_max_width=0.07, up=[0, 0, 1])
     # Occlusion: lower +z and upper -z (8). Width: lower's closings along x (0.1 > 0.07) on
     # its unoccluded faces with an x edge, +-y and -z (6). Support: lower's -z face, whose two
     # closings along y are left (2).
@@ -550,7 +593,8 @@ def test_split_box_siblings_lose_their_facing_faces_under_any_rigid_motion(
     scene = [low, high]
     options = {'gripper_max_width': 0.2, 'standoff': standoff, 'strategy': strategy,
                'up': [0.0, 0.0, 1.0], 'sensor_origin': [0.0, 0.0, 0.0]}  # fmt: skip
-    grasps, stats = grasp_hypotheses(scene, return_stats=True, **options)
+    grasps = grasp_hypotheses(scene, **options)
+    stats = grasp_filter_counts(scene, **options)
     facing = {(0, FACE_NAMES[2 * axis]), (1, FACE_NAMES[2 * axis + 1])}
     assert face_set(grasps).isdisjoint(facing)
     assert stats.faces_unoccluded == 10
@@ -558,7 +602,8 @@ def test_split_box_siblings_lose_their_facing_faces_under_any_rigid_motion(
 
     moved_scene = [part.transformed(motion, shift) for part in scene]
     moved_options = dict(options, up=motion @ [0.0, 0.0, 1.0], sensor_origin=shift)
-    moved, moved_stats = grasp_hypotheses(moved_scene, return_stats=True, **moved_options)
+    moved = grasp_hypotheses(moved_scene, **moved_options)
+    moved_stats = grasp_filter_counts(moved_scene, **moved_options)
     assert moved_stats == stats
     keys = [(g.box_index, g.face, g.roll_deg) for g in grasps]
     moved_keys = [(g.box_index, g.face, g.roll_deg) for g in moved]
@@ -577,10 +622,11 @@ def test_split_box_siblings_lose_their_facing_faces_under_any_rigid_motion(
 @given(st.lists(random_boxes(), min_size=1, max_size=4), rotations, centers_strategy,
        st.floats(0.02, 0.3))  # fmt: skip
 def test_counts_are_invariant_under_rigid_motion_of_random_scenes(boxes, motion, shift, width):
-    grasps, stats = grasp_hypotheses(boxes, gripper_max_width=width, return_stats=True)
+    grasps = grasp_hypotheses(boxes, gripper_max_width=width)
+    stats = grasp_filter_counts(boxes, gripper_max_width=width)
     moved = [box.transformed(motion, shift) for box in boxes]
-    moved_grasps, moved_stats = grasp_hypotheses(moved, gripper_max_width=width,
-                                                 return_stats=True)  # fmt: skip
+    moved_grasps = grasp_hypotheses(moved, gripper_max_width=width)
+    moved_stats = grasp_filter_counts(moved, gripper_max_width=width)
     assert moved_stats == stats
     assert stats.hypotheses == 24 * len(boxes)
     assert stats.hypotheses >= stats.after_occlusion >= stats.after_width >= stats.after_support
@@ -596,7 +642,7 @@ def test_direction_test_removes_at_most_the_bottom_face(box, up):
     if np.linalg.norm(up) < 1e-3:
         up = np.array([0.0, 0.0, 1.0])
     up_unit = up / np.linalg.norm(up)
-    grasps = grasp_hypotheses(box, gripper_max_width=WIDE, up=up)
+    grasps = grasp_hypotheses([box], gripper_max_width=WIDE, up=up)
     removed = all_faces(1) - face_set(grasps)
     downward = box.face_normals() @ up_unit
     assert len(removed) <= 1
@@ -621,20 +667,15 @@ def test_flat_boxes_stacked_with_a_gap_occlude_each_other():
     assert face_set(grasps) == all_faces(2) - {(0, '+z'), (1, '-z')}
 
 
-@dataclass
-class FakeDecompositionWithDropped(FakeDecomposition):
-    kept_point_indices: np.ndarray
-
-
 def test_outermost_centroid_ignores_points_dropped_as_noise():
     boxes = strategy_scene()
     points = np.array([[0.02, 0.02, 0.02], [0.22, 0.02, 0.02], [50.0, 0.0, 0.0]])
     # With the far outlier the centroid is near x = 16.7 and box 0 (x = 0.02) is outermost;
     # without it (dropped as noise) the centroid is at x = 0.12 and box 1 (x = 0.53) is.
-    everything = FakeDecomposition(leaves=boxes, points=points)
+    everything = decomposition_of(boxes, points)
     order = box_order(grasp_hypotheses(everything, strategy='outermost', gripper_max_width=WIDE))
     assert order[0] == 0
-    kept = FakeDecompositionWithDropped(leaves=boxes, points=points, kept_point_indices=[0, 1])
+    kept = decomposition_of(boxes, points, kept_point_indices=[0, 1])
     order = box_order(grasp_hypotheses(kept, strategy='outermost', gripper_max_width=WIDE))
     assert order[0] == 1
 
@@ -646,7 +687,8 @@ def test_real_bunny_decomposition(shared_data, gain_threshold):
     decomposition = decomposition_module.decompose(points, gain_threshold=gain_threshold)
     leaves = decomposition.leaves
     up = [0.0, 1.0, 0.0]  # the bunny model stands on its y axis
-    grasps, stats = grasp_hypotheses(decomposition, up=up, return_stats=True)
+    grasps = grasp_hypotheses(decomposition, up=up)
+    stats = grasp_filter_counts(decomposition, up=up)
     assert stats.boxes == len(leaves) and stats.hypotheses == 24 * len(leaves)
     assert stats.hypotheses >= stats.after_occlusion >= stats.after_width >= stats.after_support
     assert len(grasps) == stats.after_support > 0

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 import heapq
 import json
 import math
-from typing import Any
+from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import IndexArray
 from mvbb_ros.geometry import split as splitting
@@ -39,9 +39,11 @@ DEFAULT_GAIN_THRESHOLD = 0.94
 #: points. A count, so independent of units; mind it when voxel filtering thins a cloud.
 DEFAULT_MIN_POINTS = 10
 #: Processing orders of the boxes waiting to be tested (see :func:`decompose`).
-ORDERS: tuple[str, ...] = ('volume', 'gain', 'breadth', 'depth')
+Order = Literal['volume', 'gain', 'breadth', 'depth']
+ORDERS: tuple[Order, ...] = get_args(Order)
 #: Why a node was not split (:attr:`DecompositionNode.stop_reason`).
-STOP_REASONS: tuple[str, ...] = ('gain', 'no_cut', 'noise', 'max_boxes', 'dropped')
+StopReason = Literal['gain', 'no_cut', 'noise', 'max_boxes', 'dropped']
+STOP_REASONS: tuple[StopReason, ...] = get_args(StopReason)
 
 
 def _integer(name: str, value: Any, minimum: int) -> int:
@@ -60,12 +62,12 @@ class DecompositionSettings:
 
     gain_threshold: float = DEFAULT_GAIN_THRESHOLD
     min_points: int = DEFAULT_MIN_POINTS
-    split_measure: str = 'area'
+    split_measure: splitting.SplitMeasure = 'area'
     rescore_cuts: int = 0
     max_boxes: int | None = None
     seed: int = 0
     grid_cells: int = splitting.DEFAULT_GRID_CELLS
-    order: str = 'volume'
+    order: Order = 'volume'
 
     def __post_init__(self) -> None:
         threshold = self.gain_threshold
@@ -126,7 +128,7 @@ class DecompositionNode:
     gain: float | None
     depth: int
     dropped: bool
-    stop_reason: str | None
+    stop_reason: StopReason | None
 
     @property
     def is_leaf(self) -> bool:
@@ -285,7 +287,7 @@ class _Draft:
     theta: float | None = None
     gain: float | None = None
     dropped: bool = False
-    stop_reason: str | None = None
+    stop_reason: StopReason | None = None
 
 
 @dataclass
@@ -304,7 +306,7 @@ class _Split:
 class _Waiting:
     """Boxes waiting to be tested, popped in the chosen order."""
 
-    def __init__(self, order: str) -> None:
+    def __init__(self, order: Order) -> None:
         self._order = order
         self._heap: list[tuple[float, int]] = []
         self._queue: deque[int] = deque()
@@ -393,12 +395,12 @@ def decompose(
     *,
     gain_threshold: float = DEFAULT_GAIN_THRESHOLD,
     min_points: int = DEFAULT_MIN_POINTS,
-    split_measure: str = 'area',
+    split_measure: splitting.SplitMeasure = 'area',
     rescore_cuts: int = 0,
     max_boxes: int | None = None,
     seed: int = 0,
     grid_cells: int = splitting.DEFAULT_GRID_CELLS,
-    order: str = 'volume',
+    order: Order = 'volume',
 ) -> Decomposition:
     """
     Decompose a point cloud into minimum-volume bounding boxes by fit-and-split.

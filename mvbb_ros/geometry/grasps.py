@@ -127,13 +127,14 @@ Per-filter counts: ``grasp_hypotheses(..., return_stats=True)`` also returns a
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Literal, overload
+from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import BoolArray, FloatArray
 from mvbb_ros.geometry import box as box_geometry
 from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.decomposition import Decomposition
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
@@ -141,11 +142,12 @@ from scipy.spatial.transform import Rotation
 #: Face order (+a, -a, +b, -b, +c, -c) of :attr:`Grasp.face`, from :mod:`mvbb_ros.geometry.box`.
 FACE_NAMES: tuple[str, ...] = box_geometry.FACE_NAMES
 
+#: Ranking strategies (:func:`grasp_hypotheses`); the first is the default.
 Strategy = Literal['largest', 'smallest', 'outermost', 'nearest']
-ApproachAxis = Literal['x', 'z']
-
-#: Ranking strategies accepted by :func:`grasp_hypotheses`; the first is the default.
-STRATEGIES: tuple[str, ...] = ('largest', 'smallest', 'outermost', 'nearest')
+STRATEGIES: tuple[Strategy, ...] = get_args(Strategy)
+#: Gripper frame axis that points along the approach direction; the first is the default.
+ApproachAxis = Literal['z', 'x']
+APPROACH_AXES: tuple[ApproachAxis, ...] = get_args(ApproachAxis)
 #: Gripper rolls about the approach direction, in degrees, in hypothesis order.
 ROLLS_DEG: tuple[int, ...] = (0, 90, 180, 270)
 #: Hypotheses per box: six faces, four rolls.
@@ -255,6 +257,71 @@ class GraspStats:
     def as_dict(self) -> dict[str, int]:
         """Return the counts as a plain dict, for reports."""
         return asdict(self)
+
+
+def _floats(values: ArrayLike) -> tuple[float, ...]:
+    """Return array-like numbers as a flat tuple of floats (settings are hashable values)."""
+    return tuple(float(v) for v in np.asarray(values, dtype=np.float64).reshape(-1))
+
+
+@dataclass(frozen=True)
+class GraspSettings:
+    """
+    The settings of the grasp stage: the keyword arguments of :func:`grasp_hypotheses`.
+
+    The defaults are the library's (the Franka Hand's opening, a 5 cm standoff, no support
+    filter); :func:`grasp_hypotheses` documents each field. Arrays are kept as tuples of floats.
+
+    :raises ValueError: when a setting is out of range, with the setting's name and value.
+    """
+
+    gripper_max_width: float = DEFAULT_GRIPPER_MAX_WIDTH
+    standoff: float = DEFAULT_STANDOFF
+    approach_axis: ApproachAxis = 'z'
+    strategy: Strategy = 'largest'
+    up: tuple[float, ...] | None = None
+    support_plane: tuple[float, ...] | None = None
+    support_clearance: float = DEFAULT_SUPPORT_CLEARANCE
+    max_approach_elevation_deg: float = DEFAULT_MAX_APPROACH_ELEVATION_DEG
+    contact_tolerance: float | None = None
+    contact_fraction: float = DEFAULT_CONTACT_FRACTION
+    sensor_origin: tuple[float, ...] = (0.0, 0.0, 0.0)
+    max_grasps: int = 0
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f'strategy must be one of {STRATEGIES}, got {self.strategy!r}')
+        if self.approach_axis not in APPROACH_AXES:
+            raise ValueError(f"approach_axis must be 'x' or 'z', got {self.approach_axis!r}")
+        if not self.gripper_max_width > 0.0:
+            raise ValueError(f'gripper_max_width must be > 0, got {self.gripper_max_width}')
+        if not self.standoff >= 0.0:
+            raise ValueError(f'standoff must be >= 0, got {self.standoff}')
+        if not 0.0 <= self.max_approach_elevation_deg <= 90.0:
+            raise ValueError(
+                'max_approach_elevation_deg must be in [0, 90], '
+                f'got {self.max_approach_elevation_deg}'
+            )
+        if self.contact_tolerance is not None and not self.contact_tolerance >= 0.0:
+            raise ValueError(
+                f'contact_tolerance must be >= 0 or None, got {self.contact_tolerance}'
+            )
+        if not self.contact_fraction >= 0.0:
+            raise ValueError(f'contact_fraction must be >= 0, got {self.contact_fraction}')
+        if isinstance(self.max_grasps, bool) or not isinstance(self.max_grasps, (int, np.integer)):
+            raise ValueError(f'max_grasps must be an integer >= 0, got {self.max_grasps!r}')
+        if self.max_grasps < 0:
+            raise ValueError(f'max_grasps must be an integer >= 0, got {self.max_grasps!r}')
+        for name, size in (('up', 3), ('support_plane', 4)):
+            value = getattr(self, name)
+            if value is not None:
+                _unit(value, name, size=size)  # finite, of the right size, not zero
+                object.__setattr__(self, name, _floats(value))
+        origin = _floats(self.sensor_origin)
+        if len(origin) != 3:
+            raise ValueError(f'sensor_origin must be 3 numbers, got {self.sensor_origin!r}')
+        object.__setattr__(self, 'sensor_origin', origin)
+        object.__setattr__(self, 'max_grasps', int(self.max_grasps))
 
 
 # Geometry helpers -------------------------------------------------------------------------------
@@ -373,26 +440,23 @@ def _unit(vector: ArrayLike, name: str, size: int = 3) -> FloatArray:
     return out / norm
 
 
-def _leaf_boxes(decomposition_or_boxes: Any) -> tuple[list[Box], FloatArray | None]:
-    """Return the leaf boxes and, for a decomposition, its points (else None)."""
-    if isinstance(decomposition_or_boxes, Box):
-        return [decomposition_or_boxes], None
-    leaves = getattr(decomposition_or_boxes, 'leaves', None)
-    if leaves is not None:
-        points = getattr(decomposition_or_boxes, 'points', None)
-        if points is None:
-            return list(leaves), None
-        cloud = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        kept = getattr(decomposition_or_boxes, 'kept_point_indices', None)
-        if kept is not None:
-            cloud = cloud[np.asarray(kept, dtype=np.intp)]
-        return list(leaves), cloud
-    if isinstance(decomposition_or_boxes, Iterable):
-        return list(decomposition_or_boxes), None
-    raise TypeError(
-        'grasp_hypotheses expects a Box sequence or an object with .leaves, '
-        f'got {type(decomposition_or_boxes).__name__}'
-    )
+def _leaf_boxes(source: Decomposition | Sequence[Box]) -> tuple[list[Box], FloatArray | None]:
+    """Return the leaf boxes and, for a decomposition, its kept points (else None)."""
+    if isinstance(source, Decomposition):
+        cloud = np.asarray(source.points, dtype=np.float64)[source.kept_point_indices]
+        return list(source.leaves), cloud
+    if isinstance(source, Box) or not isinstance(source, Sequence):
+        raise TypeError(
+            'grasp_hypotheses expects a Decomposition or a sequence of Box, '
+            f'got {type(source).__name__}'
+        )
+    boxes = list(source)
+    for box in boxes:
+        if not isinstance(box, Box):
+            raise TypeError(
+                f'leaf boxes must be mvbb_ros.geometry.box.Box, got {type(box).__name__}'
+            )
+    return boxes, None
 
 
 def _object_centroid(boxes: Sequence[Box], points: FloatArray | None) -> FloatArray:
@@ -439,129 +503,22 @@ def _normalised(keys: FloatArray) -> FloatArray:
 # Public API -------------------------------------------------------------------------------------
 
 
-@overload
-def grasp_hypotheses(
-    decomposition_or_boxes: Any,
-    *,
-    gripper_max_width: float = ...,
-    standoff: float = ...,
-    approach_axis: ApproachAxis = ...,
-    strategy: Strategy = ...,
-    up: ArrayLike | None = ...,
-    support_plane: ArrayLike | None = ...,
-    support_clearance: float = ...,
-    max_approach_elevation_deg: float = ...,
-    contact_tolerance: float | None = ...,
-    contact_fraction: float = ...,
-    sensor_origin: ArrayLike = ...,
-    return_stats: Literal[False] = ...,
-) -> list[Grasp]: ...
-
-
-@overload
-def grasp_hypotheses(
-    decomposition_or_boxes: Any,
-    *,
-    gripper_max_width: float = ...,
-    standoff: float = ...,
-    approach_axis: ApproachAxis = ...,
-    strategy: Strategy = ...,
-    up: ArrayLike | None = ...,
-    support_plane: ArrayLike | None = ...,
-    support_clearance: float = ...,
-    max_approach_elevation_deg: float = ...,
-    contact_tolerance: float | None = ...,
-    contact_fraction: float = ...,
-    sensor_origin: ArrayLike = ...,
-    return_stats: Literal[True],
-) -> tuple[list[Grasp], GraspStats]: ...
-
-
-def grasp_hypotheses(
-    decomposition_or_boxes: Any,
-    *,
-    gripper_max_width: float = DEFAULT_GRIPPER_MAX_WIDTH,
-    standoff: float = DEFAULT_STANDOFF,
-    approach_axis: ApproachAxis = 'z',
-    strategy: Strategy = 'largest',
-    up: ArrayLike | None = None,
-    support_plane: ArrayLike | None = None,
-    support_clearance: float = DEFAULT_SUPPORT_CLEARANCE,
-    max_approach_elevation_deg: float = DEFAULT_MAX_APPROACH_ELEVATION_DEG,
-    contact_tolerance: float | None = None,
-    contact_fraction: float = DEFAULT_CONTACT_FRACTION,
-    sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
-    return_stats: bool = False,
-) -> list[Grasp] | tuple[list[Grasp], GraspStats]:
-    """
-    Return face-approach grasp hypotheses on leaf boxes, filtered and ranked (best first).
-
-    The module docstring defines the hypotheses, the pose convention, occlusion, the support
-    filter and the strategies precisely. All lengths are in the boxes' units (metres for
-    sensor data; scale them for the millimetre GraspIt! models).
-
-    :param decomposition_or_boxes: a sequence of :class:`~mvbb_ros.geometry.box.Box`, a single box,
-        or a decomposition (any object with ``.leaves``, a list of boxes, and optionally
-        ``.points``, (N, 3), and ``.kept_point_indices``, used for the object centroid).
-    :param gripper_max_width: maximum opening of the gripper; wider hypotheses are removed
-        (default 0.08 m, the Franka Hand).
-    :param standoff: distance of the pre-grasp position from the face centre along the outward
-        normal (>= 0, default 0.05 m).
-    :param approach_axis: gripper axis that points along ``approach``, ``'z'`` (default) or
-        ``'x'``; the fingers close along the gripper y axis.
-    :param strategy: ``'largest'`` (default), ``'smallest'``, ``'outermost'`` or ``'nearest'``.
-    :param up: up direction (3,) in the boxes' frame (any length); enables the direction test.
-    :param support_plane: (a, b, c, d), plane ``a x + b y + c z + d = 0`` with (a, b, c) up;
-        enables the direction test (with its normal as ``up`` unless ``up`` is given) and the
-        clearance test.
-    :param support_clearance: minimum height above the support plane of the pre-grasp position
-        and of both fingers at the face (default 0.01 m).
-    :param max_approach_elevation_deg: approaches pointing upwards by more than this many
-        degrees above the horizontal are removed (default 45, in [0, 90]).
-    :param contact_tolerance: absolute occlusion tolerance; None (default) uses
-        ``contact_fraction``.
-    :param contact_fraction: relative occlusion tolerance used when ``contact_tolerance`` is None
-        (default 0.1, of the smaller middle extent of the two boxes).
-    :param sensor_origin: sensor position (3,) for ``'nearest'`` (default the frame origin).
-    :param return_stats: also return the per-filter counts.
-    :return: the surviving hypotheses sorted best first, or ``(grasps, stats)`` when
-        ``return_stats`` is true.
-    :raises ValueError: on an unknown strategy or approach axis, or an invalid parameter.
-    :raises TypeError: when the input is neither boxes nor a decomposition.
-    """
-    if strategy not in STRATEGIES:
-        raise ValueError(f'strategy must be one of {STRATEGIES}, got {strategy!r}')
-    if approach_axis not in ('x', 'z'):
-        raise ValueError(f"approach_axis must be 'x' or 'z', got {approach_axis!r}")
-    if not gripper_max_width > 0.0:
-        raise ValueError(f'gripper_max_width must be > 0, got {gripper_max_width}')
-    if not standoff >= 0.0:
-        raise ValueError(f'standoff must be >= 0, got {standoff}')
-    if not 0.0 <= max_approach_elevation_deg <= 90.0:
-        raise ValueError(
-            f'max_approach_elevation_deg must be in [0, 90], got {max_approach_elevation_deg}'
-        )
-    if contact_tolerance is not None and not contact_tolerance >= 0.0:
-        raise ValueError(f'contact_tolerance must be >= 0 or None, got {contact_tolerance}')
-    if not contact_fraction >= 0.0:
-        raise ValueError(f'contact_fraction must be >= 0, got {contact_fraction}')
-
-    plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
-    if plane is not None:
-        plane = _unit(plane, 'support_plane', size=4)
-    up_direction = None if up is None else _unit(up, 'up')
+def _hypotheses(
+    source: Decomposition | Sequence[Box], settings: GraspSettings
+) -> tuple[list[Grasp], GraspStats]:
+    """Return the ranked hypotheses (all of them, before ``max_grasps``) and the filter counts."""
+    plane = (
+        None
+        if settings.support_plane is None
+        else _unit(settings.support_plane, 'support_plane', size=4)
+    )
+    up_direction = None if settings.up is None else _unit(settings.up, 'up')
     if up_direction is None and plane is not None:
         up_direction = plane[:3]
 
-    boxes, points = _leaf_boxes(decomposition_or_boxes)
-    for box in boxes:
-        if not isinstance(box, Box):
-            raise TypeError(
-                f'leaf boxes must be mvbb_ros.geometry.box.Box, got {type(box).__name__}'
-            )
+    boxes, points = _leaf_boxes(source)
     if not boxes:
-        empty = GraspStats(0, 0, 0, 0, 0, 0, 0, 0)
-        return ([], empty) if return_stats else []
+        return [], GraspStats(0, 0, 0, 0, 0, 0, 0, 0)
 
     centers = np.array([box.center for box in boxes])
     rotations = np.array([box.rotation for box in boxes])
@@ -592,17 +549,19 @@ def grasp_hypotheses(
     widths = edge_widths[:, :, np.array([0, 1, 0, 1])]  # (B, 6, 4)
     approach_per_roll = np.broadcast_to(approach[:, :, None, :], closing.shape)
     positions = np.broadcast_to(
-        (face_centers + standoff * normals)[:, :, None, :], closing.shape
+        (face_centers + settings.standoff * normals)[:, :, None, :], closing.shape
     ).copy()
 
     # Filters.
     shape = (count, n_faces, n_rolls)
-    occluded = _occluded_faces(centers, rotations, extents, contact_tolerance, contact_fraction)
+    occluded = _occluded_faces(
+        centers, rotations, extents, settings.contact_tolerance, settings.contact_fraction
+    )
     keep_occlusion = np.broadcast_to(~occluded[:, :, None], shape)
-    keep_width = keep_occlusion & (widths <= gripper_max_width)
+    keep_width = keep_occlusion & (widths <= settings.gripper_max_width)
     keep = keep_width.copy()
     if up_direction is not None:
-        limit = np.sin(np.deg2rad(max_approach_elevation_deg))
+        limit = np.sin(np.deg2rad(settings.max_approach_elevation_deg))
         keep &= approach_per_roll @ up_direction <= limit
     if plane is not None:
         half_span = (widths / 2.0)[..., None] * closing
@@ -617,10 +576,10 @@ def grasp_hypotheses(
             )
             + plane[3]
         )
-        keep &= np.all(heights >= support_clearance, axis=0)
+        keep &= np.all(heights >= settings.support_clearance, axis=0)
 
     # Poses.
-    if approach_axis == 'z':
+    if settings.approach_axis == 'z':
         columns = (np.cross(closing, approach_per_roll), closing, approach_per_roll)
     else:
         columns = (approach_per_roll, closing, np.cross(approach_per_roll, closing))
@@ -632,7 +591,7 @@ def grasp_hypotheses(
         quaternions = Rotation.from_matrix(matrices).as_quat()
         quaternions[quaternions[:, 3] < 0.0] *= -1.0
 
-    keys = _tie_rounded(_strategy_keys(strategy, boxes, points, sensor_origin))
+    keys = _tie_rounded(_strategy_keys(settings.strategy, boxes, points, settings.sensor_origin))
     scores = _normalised(keys)
     # Stable sort on the box key keeps (box, face, roll) order among ties.
     order = np.argsort(-keys[selected[:, 0]], kind='stable') if len(selected) else selected[:, 0]
@@ -653,8 +612,6 @@ def grasp_hypotheses(
                 score=float(scores[box_i]),
             )
         )
-    if not return_stats:
-        return grasps
     stats = GraspStats(
         boxes=count,
         faces=count * n_faces,
@@ -666,3 +623,89 @@ def grasp_hypotheses(
         after_support=len(grasps),
     )
     return grasps, stats
+
+
+def grasp_hypotheses(
+    source: Decomposition | Sequence[Box],
+    *,
+    gripper_max_width: float = DEFAULT_GRIPPER_MAX_WIDTH,
+    standoff: float = DEFAULT_STANDOFF,
+    approach_axis: ApproachAxis = 'z',
+    strategy: Strategy = 'largest',
+    up: ArrayLike | None = None,
+    support_plane: ArrayLike | None = None,
+    support_clearance: float = DEFAULT_SUPPORT_CLEARANCE,
+    max_approach_elevation_deg: float = DEFAULT_MAX_APPROACH_ELEVATION_DEG,
+    contact_tolerance: float | None = None,
+    contact_fraction: float = DEFAULT_CONTACT_FRACTION,
+    sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
+    max_grasps: int = 0,
+) -> list[Grasp]:
+    """
+    Return face-approach grasp hypotheses on leaf boxes, filtered and ranked (best first).
+
+    ``docs/grasp_rules.md`` defines the hypotheses, the pose convention, occlusion, the support
+    filter and the strategies precisely. All lengths are in the boxes' units (metres for
+    sensor data; scale them for the millimetre GraspIt! models). The keyword arguments are the
+    fields of :class:`GraspSettings`; :func:`grasp_filter_counts` takes the same and counts what
+    each filter removes.
+
+    :param source: a :class:`~mvbb_ros.geometry.decomposition.Decomposition` (its leaves, and its
+        kept points for the object centroid of ``'outermost'``) or a sequence of
+        :class:`~mvbb_ros.geometry.box.Box`.
+    :param gripper_max_width: maximum opening of the gripper; wider hypotheses are removed
+        (default 0.08 m, the Franka Hand).
+    :param standoff: distance of the pre-grasp position from the face centre along the outward
+        normal (>= 0, default 0.05 m).
+    :param approach_axis: gripper axis that points along ``approach``, ``'z'`` (default) or
+        ``'x'``; the fingers close along the gripper y axis.
+    :param strategy: ``'largest'`` (default), ``'smallest'``, ``'outermost'`` or ``'nearest'``.
+    :param up: up direction (3,) in the boxes' frame (any length); enables the direction test.
+    :param support_plane: (a, b, c, d), plane ``a x + b y + c z + d = 0`` with (a, b, c) up;
+        enables the direction test (with its normal as ``up`` unless ``up`` is given) and the
+        clearance test.
+    :param support_clearance: minimum height above the support plane of the pre-grasp position
+        and of both fingers at the face (default 0.01 m).
+    :param max_approach_elevation_deg: approaches pointing upwards by more than this many
+        degrees above the horizontal are removed (default 45, in [0, 90]).
+    :param contact_tolerance: absolute occlusion tolerance; None (default) uses
+        ``contact_fraction``.
+    :param contact_fraction: relative occlusion tolerance used when ``contact_tolerance`` is None
+        (default 0.1, of the smaller middle extent of the two boxes).
+    :param sensor_origin: sensor position (3,) for ``'nearest'`` (default the frame origin).
+    :param max_grasps: return at most this many, best first (default 0: all).
+    :return: the surviving hypotheses sorted best first.
+    :raises ValueError: on an unknown strategy or approach axis, or an invalid parameter.
+    :raises TypeError: when the input is neither a decomposition nor a sequence of boxes.
+    """
+    settings = GraspSettings(
+        gripper_max_width=gripper_max_width,
+        standoff=standoff,
+        approach_axis=approach_axis,
+        strategy=strategy,
+        up=None if up is None else _floats(up),
+        support_plane=None if support_plane is None else _floats(support_plane),
+        support_clearance=support_clearance,
+        max_approach_elevation_deg=max_approach_elevation_deg,
+        contact_tolerance=contact_tolerance,
+        contact_fraction=contact_fraction,
+        sensor_origin=_floats(sensor_origin),
+        max_grasps=max_grasps,
+    )
+    grasps, _ = _hypotheses(source, settings)
+    return grasps[: settings.max_grasps] if settings.max_grasps > 0 else grasps
+
+
+def grasp_filter_counts(source: Decomposition | Sequence[Box], **options: Any) -> GraspStats:
+    """
+    Return how many hypotheses of :func:`grasp_hypotheses` survive each filter, in order.
+
+    :param source: as for :func:`grasp_hypotheses`.
+    :param options: the keyword arguments of :func:`grasp_hypotheses` (the fields of
+        :class:`GraspSettings`); ``max_grasps`` is no filter and does not change the counts.
+    :return: the counts: faces and hypotheses before any filter, after occlusion, after the
+        width filter and after the support filter.
+    :raises ValueError: for an invalid option.
+    :raises TypeError: when the input is neither a decomposition nor a sequence of boxes.
+    """
+    return _hypotheses(source, GraspSettings(**options))[1]

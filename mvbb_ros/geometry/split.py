@@ -31,7 +31,7 @@ ratio, so it does not depend on the units of the points.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
@@ -39,7 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 #: Split measures: ``'area'`` is the paper's 2D projection measure, ``'volume'`` the 3D option.
-SPLIT_MEASURES: tuple[str, ...] = ('area', 'volume')
+SplitMeasure = Literal['area', 'volume']
+SPLIT_MEASURES: tuple[SplitMeasure, ...] = get_args(SplitMeasure)
 
 #: Default number of grid cells per box axis: the 31 inner cell boundaries are the candidate
 #: cut positions, about 3 % of the box apart whatever its size (scale-free). Measured with
