@@ -202,10 +202,11 @@ class Bench:
 
         start = time.perf_counter()
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-        cloud = cloud.voxel_down_sample(self.settings.voxel_size)
+        filtering = self.settings.filtering
+        cloud = cloud.voxel_down_sample(filtering.voxel_size)
         cloud.remove_statistical_outlier(
-            nb_neighbors=self.settings.outlier_neighbors,
-            std_ratio=self.settings.outlier_std_ratio,
+            nb_neighbors=filtering.outlier_neighbors,
+            std_ratio=filtering.outlier_std_ratio,
         )
         return (time.perf_counter() - start) * 1e3
 
@@ -322,8 +323,9 @@ def main() -> int:
     )
     settings = PipelineSettings()
     print(
-        f'settings: voxel_size {settings.voxel_size}, outlier_neighbors '
-        f'{settings.outlier_neighbors}, outlier_std_ratio {settings.outlier_std_ratio}'
+        f'settings: voxel_size {settings.filtering.voxel_size}, outlier_neighbors '
+        f'{settings.filtering.outlier_neighbors}, outlier_std_ratio '
+        f'{settings.filtering.outlier_std_ratio}'
     )
     bench = Bench(settings)
     try:

@@ -113,7 +113,9 @@ def test_runtime_parameter_change_is_validated_and_reprocesses(graph):
     assert not ok and 'area' in reason
     ok, reason = _set_parameter(graph, 'min_points', 'many')
     assert not ok
-    assert graph.node.settings.gain_threshold == pytest.approx(0.94), 'refused: old value kept'
+    assert graph.node.settings.decomposition.gain_threshold == pytest.approx(0.94), (
+        'refused: old value kept'
+    )
 
     seen = len(graph.boxes)
     ok, reason = _set_parameter(graph, 'gain_threshold', 0.2)

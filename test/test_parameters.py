@@ -47,8 +47,7 @@ def test_hostile_values_are_refused_with_the_setting_named(spec):
 
 def test_defaults_are_valid_and_unknown_names_refused():
     for spec in SPECS:
-        value = getattr(PipelineSettings(), spec.name)
-        assert validate_setting(spec.name, list(value) if spec.kind is list else value) is None
+        assert validate_setting(spec.name, PipelineSettings().value(spec.name)) is None
     assert 'unknown' in validate_setting('gain_thresold', 0.9)
 
 
@@ -56,7 +55,7 @@ def test_crop_corners_must_be_ordered():
     with pytest.raises(ValueError, match='crop_min'):
         settings_from_mapping({'crop_min': [0, 0, 1], 'crop_max': [1, 1, 0]})
     settings = settings_from_mapping({'crop_min': [0, 0, 0], 'crop_max': [1, 1, 1]})
-    assert settings.crop_max == (1.0, 1.0, 1.0)
+    assert settings.filtering.crop_max == (1.0, 1.0, 1.0)
 
 
 def test_assignments_parse_like_ros_and_reject_garbage():

@@ -331,6 +331,6 @@ def _draw(picture: Path, last: OfflineFrame, settings: PipelineSettings) -> None
     points = read_xyz(last.cloud)
     title = (
         f'demo frame {last.index}: {len(points)} points -> {len(boxes)} boxes, '
-        f'{len(grasps)} grasps (t = {settings.gain_threshold:g})'
+        f'{len(grasps)} grasps (t = {settings.decomposition.gain_threshold:g})'
     )
     render_boxes(picture, points, boxes, grasps=grasps, title=title)

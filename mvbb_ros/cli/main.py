@@ -1,20 +1,30 @@
 """
-The `mvbb` command: offline decomposition, the demo, and the bag tools.
+The `mvbb` command: decompose a cloud file, the demo, the bag tools and the grasp evaluation.
 
-Each subcommand imports what it needs when it runs, so `mvbb --help` stays fast and the offline
-commands work without a ROS graph.
+`mvbb decompose` runs the node's per-cloud function (:func:`~mvbb_ros.pipeline.process.
+process_points`) with the node's settings, so a file gives the boxes the node publishes for the
+same cloud; ``--preset paper`` gives the paper's algorithm. The settings' flags are the node's
+parameters (:mod:`mvbb_ros.cli.options`). Each subcommand imports the heavy layers it needs
+(Open3D, matplotlib, rclpy) when it runs, so `mvbb --help` stays fast and only the ROS commands
+load ROS.
 """
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from dataclasses import asdict
 import json
 from pathlib import Path
+import signal
 import sys
+import threading
 import time
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
+from mvbb_ros.cli.atomic import atomic_open
+from mvbb_ros.cli.options import add_settings_options, settings_from_args
+from mvbb_ros.cli.progress import ProgressBar
 from mvbb_ros.evaluation.gripper import (
     DEFAULT_DEPTH_FACTOR,
     DEFAULT_WIDTH_FACTOR,
@@ -22,63 +32,15 @@ from mvbb_ros.evaluation.gripper import (
 )
 from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
-from mvbb_ros.pipeline.settings import PipelineSettings
+from mvbb_ros.pipeline.settings import defaults, format_assignment, PipelineSettings
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:  # the pipeline loads Open3D: imported when a command runs (see below)
+    from mvbb_ros.pipeline.process import PipelineResult
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
-
-
-def _add_decomposition_options(parser: argparse.ArgumentParser) -> None:
-    """Add the decomposition and grasp options shared by `decompose` and `demo`."""
-    group = parser.add_argument_group('decomposition (Huebner et al. 2008)')
-    group.add_argument(
-        '--gain-threshold',
-        '-t',
-        type=float,
-        default=PipelineSettings.gain_threshold,
-        help='accept a split while the volume gain Theta* is below this (paper t; default '
-        f'{PipelineSettings.gain_threshold})',
-    )
-    group.add_argument(
-        '--min-points',
-        type=int,
-        default=None,
-        help='drop boxes with fewer points as noise (default: the library default)',
-    )
-    group.add_argument(
-        '--split-measure',
-        choices=('area', 'volume'),
-        default='area',
-        help="split measure theta: 'area' = the paper's 2D projection (default), "
-        "'volume' = product of the parts' three extents",
-    )
-    group.add_argument(
-        '--rescore-cuts',
-        type=int,
-        default=0,
-        help='re-score the best K cuts with real box fits (0 = the paper; default 0)',
-    )
-    group.add_argument('--seed', type=int, default=0, help='random seed of the box fit')
-    grasp = parser.add_argument_group('grasp hypotheses')
-    grasp.add_argument(
-        '--gripper-max-width',
-        type=float,
-        default=None,
-        help='maximum gripper opening, in the cloud units (default: library default, metres)',
-    )
-    grasp.add_argument(
-        '--standoff',
-        type=float,
-        default=None,
-        help='pre-grasp distance off the face, in the cloud units (default: library default)',
-    )
-    grasp.add_argument(
-        '--strategy',
-        choices=('largest', 'smallest', 'outermost', 'nearest'),
-        default=None,
-        help='grasp ranking strategy (default: library default)',
-    )
 
 
 def _positive_float(text: str) -> float:
@@ -93,18 +55,6 @@ def _non_negative_float(text: str) -> float:
     if not value >= 0.0:
         raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
     return value
-
-
-def _add_param_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        '-p',
-        '--param',
-        action='append',
-        default=[],
-        metavar='NAME:=VALUE',
-        help='set a node parameter, as ros2 run ... -p does (repeatable); see '
-        'config/decomposer.yaml for the names',
-    )
 
 
 def _add_progress_option(parser: argparse.ArgumentParser) -> None:
@@ -176,12 +126,6 @@ def _add_bag_commands(commands: argparse._SubParsersAction) -> None:
     process.add_argument(
         '--topic', help='the PointCloud2 topic (needed when IN has more than one)'
     )
-    _add_param_option(process)
-    process.add_argument(
-        '--params-file',
-        type=Path,
-        help='a ROS parameter YAML file (like config/decomposer.yaml); -p overrides it',
-    )
     process.add_argument(
         '--with-input', action='store_true', help='also write the input clouds, on their topic'
     )
@@ -202,6 +146,7 @@ def _add_bag_commands(commands: argparse._SubParsersAction) -> None:
     process.add_argument('--force', action='store_true', help='replace OUT if it exists')
     process.add_argument('--quiet', action='store_true', help='print only the totals')
     _add_progress_option(process)
+    add_settings_options(process, node=True)
     process.set_defaults(handler=_run_bag_process)
 
 
@@ -218,13 +163,14 @@ def build_parser() -> argparse.ArgumentParser:
     decompose = commands.add_parser(
         'decompose',
         help='decompose a point cloud file (.npy, .ply, .pcd) into boxes and grasps',
-        description='Decompose a point cloud file into boxes; print a table, optionally write '
-        'JSON and a picture.',
+        description="Run the node's pipeline (filter, decompose, grasp) on a point cloud file "
+        "with the node's settings; print the boxes and grasps, optionally write JSON and a "
+        "picture. --preset paper runs the paper's algorithm on the raw points instead.",
     )
     decompose.add_argument('file', type=Path, help='point cloud: .npy (N x 3), .ply or .pcd')
-    _add_decomposition_options(decompose)
     decompose.add_argument('--json', type=Path, help='write the boxes, tree and grasps as JSON')
     decompose.add_argument('--png', type=Path, help='write a picture (three views)')
+    add_settings_options(decompose)
     decompose.set_defaults(handler=_run_decompose)
 
     demo = commands.add_parser(
@@ -253,8 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument(
         '--rate', type=_positive_float, default=1.0, help='playback rate (default 1)'
     )
-    _add_param_option(demo)
-    _add_decomposition_options(demo)
+    add_settings_options(demo, node=True)
     demo.set_defaults(handler=_run_demo)
 
     _add_bag_commands(commands)
@@ -262,42 +207,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _decomposition_kwargs(args: argparse.Namespace) -> dict:
-    kwargs = {
-        'gain_threshold': args.gain_threshold,
-        'split_measure': args.split_measure,
-        'rescore_cuts': args.rescore_cuts,
-        'seed': args.seed,
-    }
-    if args.min_points is not None:
-        kwargs['min_points'] = args.min_points
-    return kwargs
-
-
-def _grasp_kwargs(args: argparse.Namespace) -> dict:
-    names = ('gripper_max_width', 'standoff', 'strategy')
-    return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
-
-
 def _format_vector(values: Sequence[float]) -> str:
     return ' '.join(f'{value:9.4f}' for value in values)
 
 
-def print_report(decomposition: object, grasps: Sequence, seconds: float) -> None:
-    """Print the leaf boxes and the best grasps as plain-text tables."""
+def print_report(result: PipelineResult, seconds: float) -> None:
+    """Print the counts, the leaf boxes and the best grasps as plain-text tables."""
+    decomposition, grasps, counts = result.decomposition, result.grasps, result.counts
+    assert decomposition is not None
     leaves = decomposition.leaves
-    counts = [len(indices) for indices in decomposition.leaf_point_indices]
-    root_volume = decomposition.root.box.volume
-    total = sum(box.volume for box in leaves)
+    leaf_counts = [len(indices) for indices in decomposition.leaf_point_indices]
     print(
-        f'{len(decomposition.points)} points -> {len(leaves)} boxes '
+        f'{counts.finite} points, {counts.inliers} after filtering -> {len(leaves)} boxes '
         f'(t = {decomposition.settings.gain_threshold:g}, '
         f'{len(decomposition.dropped_point_indices)} points dropped) in {seconds * 1e3:.1f} ms'
     )
-    ratio = total / root_volume if root_volume > 0 else float('nan')
+    root_volume = decomposition.root_volume
+    ratio = decomposition.leaf_volume / root_volume if root_volume > 0 else float('nan')
     print(f'leaf volume / root volume = {ratio:.3f}')
     print(f'{"box":>3} {"points":>7}  {"centre":^29}  {"extents":^29}  {"volume":>11}')
-    for index, (box, count) in enumerate(zip(leaves, counts, strict=True)):
+    for index, (box, count) in enumerate(zip(leaves, leaf_counts, strict=True)):
         print(
             f'{index:3d} {count:7d}  {_format_vector(box.center)}  '
             f'{_format_vector(box.extents)}  {box.volume:11.4g}'
@@ -314,120 +243,107 @@ def print_report(decomposition: object, grasps: Sequence, seconds: float) -> Non
         print(f'... {len(grasps) - 10} more')
 
 
+def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[str, Any]:
+    """
+    Return the JSON document of one cloud's result.
+
+    The decomposition's own dict (:meth:`~mvbb_ros.geometry.decomposition.Decomposition.
+    to_dict`: the tree, the leaves by node index, each box), the grasps, the filter counts and
+    every parameter in force.
+    """
+    assert result.decomposition is not None
+    document = result.decomposition.to_dict()
+    document['grasps'] = [grasp.to_dict() for grasp in result.grasps]
+    document['filter_counts'] = asdict(result.counts)
+    document['parameters'] = settings.parameters()
+    return document
+
+
 def decompose_and_report(
-    points: object,
-    args: argparse.Namespace,
+    points: ArrayLike,
+    settings: PipelineSettings,
     *,
     json_path: Path | None,
     png_path: Path | None,
     title: str,
 ) -> None:
-    """Decompose `points`, print the tables, and write the JSON and picture when asked."""
-    from mvbb_ros.geometry.decomposition import decompose
-    from mvbb_ros.geometry.grasps import grasp_hypotheses
+    """
+    Run the node's pipeline on `points`, print the tables, write the JSON and picture if asked.
+
+    :raises ValueError: when too few points are left after filtering (the node's warning).
+    """
+    # Deferred: the pipeline loads Open3D (the filters), which `mvbb --help` does not need.
+    from mvbb_ros.pipeline.process import process_points
 
     start = time.perf_counter()
-    decomposition = decompose(points, **_decomposition_kwargs(args))
-    grasps = grasp_hypotheses(decomposition, **_grasp_kwargs(args))
+    result = process_points(points, settings)
     seconds = time.perf_counter() - start
-    print_report(decomposition, grasps, seconds)
+    if result.decomposition is None:
+        raise ValueError(result.warning or 'no decomposition')
+    print_report(result, seconds)
     if json_path is not None:
-        from mvbb_ros.cli.atomic import atomic_open
-
-        document = decomposition.to_dict()
-        document['grasps'] = [grasp.to_dict() for grasp in grasps]
         with atomic_open(json_path) as handle:
-            json.dump(document, handle, indent=2)
+            json.dump(result_document(result, settings), handle, indent=2)
         print(f'wrote {json_path}')
     if png_path is not None:
+        # Deferred: matplotlib, only when a picture is asked for.
         from mvbb_ros.cli.render import render_boxes
 
+        decomposition = result.decomposition
         render_boxes(
-            png_path, decomposition.points, decomposition.leaves, grasps=grasps, title=title
+            png_path, decomposition.points, decomposition.leaves, grasps=result.grasps, title=title
         )
         print(f'wrote {png_path}')
 
 
 def _run_decompose(args: argparse.Namespace) -> int:
+    # Deferred: cloud files are read with Open3D.
     from mvbb_ros.cli.cloud_io import load_cloud
 
+    settings = settings_from_args(args)
     points = load_cloud(args.file)
-    title = f'{args.file.name}: t = {args.gain_threshold:g}'
-    decompose_and_report(points, args, json_path=args.json, png_path=args.png, title=title)
+    title = f'{args.file.name}: t = {settings.decomposition.gain_threshold:g}'
+    decompose_and_report(points, settings, json_path=args.json, png_path=args.png, title=title)
     return EXIT_OK
 
 
-def _run_offline_demo(args: argparse.Namespace) -> int:
+def _run_offline_demo(args: argparse.Namespace, settings: PipelineSettings) -> int:
+    # Deferred: the synthetic scenes are ray-cast with Open3D.
     from mvbb_ros.cli.synthetic import segmented_object_cloud
 
-    points = segmented_object_cloud(args.object, seed=args.seed)
+    points = segmented_object_cloud(args.object, seed=settings.decomposition.seed)
     print(f'demo: synthetic {args.object} seen by a virtual depth camera ({len(points)} points)')
     out = args.out
     decompose_and_report(
         points,
-        args,
+        settings,
         json_path=out / f'demo_{args.object}.json',
         png_path=out / f'demo_{args.object}.png',
-        title=f'synthetic {args.object}: t = {args.gain_threshold:g}',
+        title=f'synthetic {args.object}: t = {settings.decomposition.gain_threshold:g}',
     )
     return EXIT_OK
 
 
-def _demo_assignments(args: argparse.Namespace) -> list[str]:
-    """Return the demo's decomposition options (where not the default) and -p as parameters."""
-    from mvbb_ros.pipeline.settings import defaults
-
-    values = {
-        'gain_threshold': args.gain_threshold,
-        'split_measure': args.split_measure,
-        'rescore_cuts': args.rescore_cuts,
-        'seed': args.seed,
-        'min_points': args.min_points,
-        'gripper_max_width': args.gripper_max_width,
-        'standoff': args.standoff,
-        'grasp_strategy': args.strategy,
-    }
+def node_assignments(settings: PipelineSettings) -> list[str]:
+    """Return ``name:=value`` for every setting that differs from the node's defaults."""
     default = defaults()
-    options = [
-        f'{name}:={value}'
-        for name, value in values.items()
-        if value is not None and value != default[name]
+    return [
+        format_assignment(name, value)
+        for name, value in settings.parameters().items()
+        if value != default[name]
     ]
-    return options + list(args.param)
 
 
 def _run_demo(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
     if args.offline:
-        return _run_offline_demo(args)
+        return _run_offline_demo(args, settings)
+    # Deferred: the demo runs the ROS graph; importing it is what `mvbb demo` pays for.
     from mvbb_ros.cli.demo import run_demo
 
     return run_demo(
-        args.out, assignments=_demo_assignments(args), frames=args.frames, rate=args.rate
+        args.out, assignments=node_assignments(settings), frames=args.frames, rate=args.rate
     )
-
-
-def _settings_from_args(args: argparse.Namespace) -> object:
-    """Return PipelineSettings from --params-file and -p (ValueError names a bad one)."""
-    from mvbb_ros.pipeline.settings import parse_assignments, settings_from_mapping
-
-    values: dict = {}
-    if getattr(args, 'params_file', None) is not None:
-        values.update(_read_params_file(args.params_file))
-    values.update(parse_assignments(args.param))
-    return settings_from_mapping(values)
-
-
-def _read_params_file(path: Path) -> dict:
-    """Return the ros__parameters of a ROS parameter file (the first node entry with some)."""
-    import yaml
-
-    with open(path) as handle:
-        document = yaml.safe_load(handle)
-    if isinstance(document, dict):
-        for entry in document.values():
-            if isinstance(entry, dict) and isinstance(entry.get('ros__parameters'), dict):
-                return dict(entry['ros__parameters'])
-    raise ValueError(f'{path} has no <node>: ros__parameters: mapping')
 
 
 def _bag_error(args: argparse.Namespace, error: BaseException) -> int:
@@ -436,9 +352,7 @@ def _bag_error(args: argparse.Namespace, error: BaseException) -> int:
 
 
 def _run_bag_play(args: argparse.Namespace) -> int:
-    import signal
-    import threading
-
+    # Deferred, like every ROS import of the tools: only the ROS commands load rclpy.
     from mvbb_ros.ros.bag import BagError
     from mvbb_ros.ros.bag_play import play_bag
 
@@ -478,12 +392,12 @@ def _run_bag_play(args: argparse.Namespace) -> int:
 
 
 def _run_bag_process(args: argparse.Namespace) -> int:
-    from mvbb_ros.cli.progress import ProgressBar
+    # Deferred, like every ROS import of the tools: only the ROS commands load rclpy.
     from mvbb_ros.ros.bag import BagError
     from mvbb_ros.ros.offline import format_row, format_totals, process_bag, TABLE_HEADER
 
     try:
-        settings = _settings_from_args(args)
+        settings = settings_from_args(args)
     except (OSError, ValueError) as error:
         return _bag_error(args, error)
     bar = ProgressBar(None, label='processing', enabled=args.progress)
@@ -607,7 +521,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     target = GraspTarget.from_mesh(args.mesh)
     points = None
     if args.points is not None:
-        from mvbb_ros.cli.cloud_io import load_cloud
+        from mvbb_ros.cli.cloud_io import load_cloud  # deferred: Open3D
 
         points = load_cloud(args.points)
     comparison = compare_grasp_sets(
@@ -628,8 +542,6 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     print(comparison.describe())
     print(format_comparison(comparison, markdown=False))
     if args.json is not None:
-        from mvbb_ros.cli.atomic import atomic_open
-
         with atomic_open(args.json) as handle:
             json.dump(comparison.to_dict(), handle, indent=2)
         print(f'wrote {args.json}')

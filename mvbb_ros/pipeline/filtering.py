@@ -1,14 +1,16 @@
 """
 Point cloud filtering before the box fit: crop, voxel down-sampling, statistical outliers.
 
-Each step can be turned off (see :mod:`mvbb_ros.pipeline.settings`). Steps run in that order:
+Each step can be turned off (:class:`~mvbb_ros.pipeline.settings.FilterSettings`, whose
+defaults turn them all off; the node turns the voxel grid and the outliers on). Steps run in
+that order:
 cropping first makes the others cheaper, and outlier statistics are steadier on the evenly spaced
 voxel centroids than on raw sensor points.
 
 Voxel down-sampling: numpy by default, Open3D's as an option
 ----------------------------------------------------------------
-DESIGN.md section 2 says the filter is Open3D's. The voxel step is now computed with numpy by
-default (``voxel_backend = 'numpy'``, :func:`voxel_down_sample`) because on full depth frames it
+The filters were Open3D's at first. The voxel step is now computed with numpy by default
+(``voxel_backend = 'numpy'``, :func:`voxel_down_sample`) because on full depth frames it
 was the most expensive step around the decomposition, and Open3D's needs a float64 copy of the
 whole cloud first: on a 300k-point frame (one core, ``benchmarks/pipeline.py``) the Open3D
 conversion and ``voxel_down_sample`` took about 1 + 7.5 ms, the numpy grid about 2-3 ms straight
@@ -38,12 +40,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mvbb_ros.pipeline.settings import VOXEL_BACKENDS, VoxelBackend
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 import open3d as o3d
 
-#: Voxel back-ends of :func:`filter_points` (the ``voxel_backend`` setting).
-VOXEL_BACKENDS: tuple[str, ...] = ('numpy', 'open3d')
 #: The dense grid (bincount) is used when it has at most this many cells per point.
 DENSE_GRID_FACTOR = 8
 #: ... or at most this many cells in all, whatever the point count (a few MB of counts).
@@ -144,7 +145,7 @@ def filter_points(
     outlier_std_ratio: float = 2.0,
     crop_min: ArrayLike | None = None,
     crop_max: ArrayLike | None = None,
-    voxel_backend: str = 'numpy',
+    voxel_backend: VoxelBackend = 'numpy',
 ) -> tuple[NDArray[np.float64], FilterCounts]:
     """
     Crop, voxel-downsample and remove statistical outliers from finite `points` (N, 3).

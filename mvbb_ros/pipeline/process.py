@@ -1,14 +1,15 @@
 """
-The per-cloud pipeline: decode, filter, decompose, grasp (DESIGN.md section 2).
+The per-cloud pipeline: decode, filter, decompose, grasp (``docs/architecture.md``).
 
-One function, :func:`process_cloud`, serves the node and `mvbb bag process`, so what a bag
-produces offline is what the node publishes live. No ROS import: the cloud message is read
-duck-typed (rclpy and rosbags messages both work).
+One function, :func:`process_points` (behind :func:`process_cloud` for messages), serves the
+node, `mvbb bag process` and `mvbb decompose`, with one :class:`PipelineSettings`, so a cloud
+gives the same boxes and grasps live, offline and on the command line. No ROS import: the cloud
+message is read duck-typed (rclpy and rosbags messages both work).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 import time
 from typing import Any
 
@@ -53,59 +54,39 @@ def _empty_counts(count: int = 0) -> FilterCounts:
 
 
 def process_points(
-    points: ArrayLike, settings: PipelineSettings, timings_ms: dict[str, float] | None = None
+    points: ArrayLike,
+    settings: PipelineSettings | None = None,
+    timings_ms: dict[str, float] | None = None,
 ) -> PipelineResult:
     """
     Filter, decompose and grasp finite `points` (N, 3) in metres.
 
     :param points: finite points of one segmented object, in the sensor frame (float32 or
         float64).
-    :param settings: the pipeline settings.
+    :param settings: the pipeline settings; None for the node's defaults (``PipelineSettings()``;
+        ``PipelineSettings.paper()`` is the paper's algorithm).
     :param timings_ms: step timings measured before this call (decoding), kept in the result.
     :return: the result; empty with a `warning` when too few points remain.
     """
+    settings = settings if settings is not None else PipelineSettings()
     timings = dict(timings_ms or {})
     start = time.perf_counter()
-    filtered, counts = filter_points(
-        points,
-        voxel_size=settings.voxel_size,
-        outlier_neighbors=settings.outlier_neighbors,
-        outlier_std_ratio=settings.outlier_std_ratio,
-        crop_min=settings.crop_min,
-        crop_max=settings.crop_max,
-        voxel_backend=settings.voxel_backend,
-    )
+    filtered, counts = filter_points(points, **asdict(settings.filtering))
     timings['filter'] = (time.perf_counter() - start) * 1e3
-    if len(filtered) < settings.min_points:
+    min_points = settings.decomposition.min_points
+    if len(filtered) < min_points:
         warning = (
             f'only {len(filtered)} of {counts.finite} points left after filtering, fewer than '
-            f'min_points = {settings.min_points}'
+            f'min_points = {min_points}'
         )
         return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
 
     start = time.perf_counter()
-    decomposition = decompose(
-        filtered,
-        gain_threshold=settings.gain_threshold,
-        min_points=settings.min_points,
-        split_measure=settings.split_measure,
-        rescore_cuts=settings.rescore_cuts,
-        max_boxes=settings.max_boxes,
-        seed=settings.seed,
-    )
+    decomposition = decompose(filtered, **asdict(settings.decomposition))
     timings['decompose'] = (time.perf_counter() - start) * 1e3
 
     start = time.perf_counter()
-    grasps = grasp_hypotheses(
-        decomposition,
-        gripper_max_width=settings.gripper_max_width,
-        standoff=settings.standoff,
-        approach_axis=settings.approach_axis,
-        strategy=settings.grasp_strategy,
-        up=settings.up_direction or None,
-    )
-    if settings.max_grasps > 0:
-        grasps = grasps[: settings.max_grasps]
+    grasps = grasp_hypotheses(decomposition, **asdict(settings.grasps))
     timings['grasps'] = (time.perf_counter() - start) * 1e3
     return PipelineResult(
         counts=counts, decomposition=decomposition, grasps=grasps, timings_ms=timings

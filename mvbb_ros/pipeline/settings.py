@@ -1,44 +1,177 @@
 """
-Pipeline settings: one table of every tunable, its type, default, range and meaning.
+Pipeline settings: the table of every tunable (:data:`SPECS`) and the settings object it fills.
 
-The node declares one ROS parameter per entry, `mvbb bag process -p name:=value` parses the same
-names, and `config/decomposer.yaml` lists the defaults. Validation lives here, so a bad value is
-refused with the same reason wherever it comes from. No ROS import.
+Each stage owns a frozen settings dataclass whose defaults are the library's own: the paper's
+for the geometry, "off" for the filters. :class:`PipelineSettings` composes them, one field per
+stage (the two stages of the pipeline layer are defined here, so that reading the settings does
+not load Open3D, which the filters use):
+
+* ``filtering``: :class:`FilterSettings` (this module); its defaults filter nothing;
+* ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.DecompositionSettings`; the
+  paper's defaults;
+* ``grasps``: :class:`~mvbb_ros.geometry.grasps.GraspSettings`; the library's defaults;
+* ``node``: :class:`NodeSettings` (this module): what only the node uses.
+
+:data:`SPECS` lists every tunable the node exposes, once: its flat parameter name (the ROS
+parameter and the ``mvbb`` flag, e.g. ``gain_threshold``), the stage field it sets, its type,
+range or choices, its description and, where the node's default differs from the stage's, the
+node's default. The node declares its ROS parameters from it, ``config/decomposer.yaml`` is
+generated from it (:func:`parameters_yaml`), the ``mvbb`` command builds its flags from it, and
+:func:`validate_setting` checks every value against it, so a bad value is refused with the same
+reason wherever it comes from. No ROS import.
+
+Presets (:data:`PRESETS`): ``'node'`` is :class:`PipelineSettings()`, the node's defaults;
+``'paper'`` (:meth:`PipelineSettings.paper`) is every stage at its own defaults, the paper's
+algorithm on the raw points. ``docs/architecture.md`` shows where each setting lives and how to
+add one.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, MISSING, replace
 import math
-from typing import Any
+import os
+import textwrap
+from typing import Any, get_args, Literal
+
+from mvbb_ros.geometry.decomposition import DecompositionSettings
+from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
+from mvbb_ros.geometry.split import SPLIT_MEASURES
+import yaml
 
 #: What the range checks accept: (low, high) inclusive; None for no bound.
 Range = tuple[float | None, float | None]
 
 
+class _StageDefault:
+    """Marker: a setting's node default is its stage's own default."""
+
+    def __repr__(self) -> str:
+        return 'the stage default'
+
+
+#: The default of :attr:`SettingSpec.node_default`: take the stage's default.
+STAGE_DEFAULT: Any = _StageDefault()
+
+
+#: Voxel back-ends of the filters (the ``voxel_backend`` setting); the first is the default.
+VoxelBackend = Literal['numpy', 'open3d']
+VOXEL_BACKENDS: tuple[VoxelBackend, ...] = get_args(VoxelBackend)
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """
+    The settings of the filtering stage (the keyword arguments of ``filter_points``).
+
+    :func:`~mvbb_ros.pipeline.filtering.filter_points` crops, voxel-filters and removes
+    outliers. The defaults turn every filter off, as in the paper (which filters nothing); the
+    node's defaults (``config/decomposer.yaml``) turn the voxel grid and the outlier removal on.
+    """
+
+    crop_min: tuple[float, ...] = ()
+    crop_max: tuple[float, ...] = ()
+    voxel_size: float = 0.0
+    voxel_backend: VoxelBackend = 'numpy'
+    outlier_neighbors: int = 0
+    outlier_std_ratio: float = 2.0
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """
+    The settings of the node itself, beyond the pipeline's stages.
+
+    :ivar publish_tree: also publish the non-leaf boxes of the hierarchy on ``~/tree``.
+    :ivar reliable_input: subscribe reliably with a deep queue (read-only: start-up only).
+    """
+
+    publish_tree: bool = True
+    reliable_input: bool = False
+
+
 @dataclass(frozen=True)
 class SettingSpec:
     """
-    One tunable: name, Python type, inclusive range or choices, and a description.
+    One tunable: its parameter name, the stage field it sets, type, range, and description.
 
-    Defaults are the field defaults of :class:`PipelineSettings` (one place). `read_only`
-    settings can only be given at start-up (ROS read-only parameters).
+    :ivar name: the ROS parameter name, which is also the ``mvbb`` flag (``--gain-threshold``).
+    :ivar stage: the stage's settings class (a field type of :class:`PipelineSettings`).
+    :ivar kind: the parameter type: bool, int, float, str, or list (a vector of floats).
+    :ivar description: one or two sentences for ``ros2 param describe``, the YAML and ``--help``.
+    :ivar value_range: inclusive (low, high) for numbers.
+    :ivar choices: the accepted strings (a choice list defined once, next to its stage).
+    :ivar vector_length: the length of a vector; an empty vector turns the feature off.
+    :ivar read_only: only settable at start-up (a ROS read-only parameter).
+    :ivar field: the stage field, when its name differs from `name`.
+    :ivar node_default: the node's default, when it differs from the stage's own.
+    :ivar unset: the parameter value that stands for None in the stage field (0, or ``()`` for
+        an empty vector); None when the field is never None.
     """
 
     name: str
+    stage: type
     kind: type
     description: str
     value_range: Range | None = None
     choices: tuple[str, ...] | None = None
     vector_length: int | None = None
     read_only: bool = False
+    field: str | None = None
+    node_default: Any = STAGE_DEFAULT
+    unset: Any = None
+
+    @property
+    def attribute(self) -> str:
+        """Return the name of the stage field this setting sets."""
+        return self.field or self.name
+
+    @property
+    def default(self) -> Any:
+        """Return the node's default as a parameter value (lists for vectors)."""
+        if self.node_default is not STAGE_DEFAULT:
+            return self.node_default
+        return self.stage_default
+
+    @property
+    def stage_default(self) -> Any:
+        """Return the stage's own (library) default as a parameter value."""
+        stage_field = next(f for f in fields(self.stage) if f.name == self.attribute)
+        assert stage_field.default is not MISSING, f'{self.name}: the stage field has no default'
+        return self.to_parameter(stage_field.default)
+
+    def to_field(self, value: Any) -> Any:
+        """Convert a (valid) parameter value to the stage field's value."""
+        if self.unset is not None and _same(value, self.unset):
+            return None
+        if self.kind is list:
+            return tuple(float(v) for v in value)
+        if self.kind is float:
+            return float(value)
+        return value
+
+    def to_parameter(self, value: Any) -> Any:
+        """Convert a stage field's value to the parameter value (None becomes `unset`)."""
+        if value is None:
+            return list(self.unset) if isinstance(self.unset, tuple) else self.unset
+        if isinstance(value, tuple):
+            return [float(v) for v in value]
+        return value
 
 
+def _same(value: Any, unset: Any) -> bool:
+    if isinstance(unset, tuple):
+        return isinstance(value, list | tuple) and len(value) == 0
+    return value == unset and not isinstance(value, bool)
+
+
+#: Every tunable of the node, in the order of ``config/decomposer.yaml`` and ``mvbb --help``.
 SPECS: tuple[SettingSpec, ...] = (
     # Decomposition (paper Section III).
     SettingSpec(
         'gain_threshold',
+        DecompositionSettings,
         float,
         "Accept a split while the volume gain Theta* is below this (the paper's t); "
         'lower means fewer boxes.',
@@ -46,49 +179,71 @@ SPECS: tuple[SettingSpec, ...] = (
     ),
     SettingSpec(
         'min_points',
+        DecompositionSettings,
         int,
         'Boxes with fewer points than this are dropped as noise.',
         (1, 1_000_000),
+        node_default=25,
     ),
-    SettingSpec('max_boxes', int, 'Upper bound on the number of leaf boxes.', (1, 256)),
+    SettingSpec(
+        'max_boxes',
+        DecompositionSettings,
+        int,
+        'Upper bound on the number of leaf boxes; 0: no bound (the paper has none).',
+        (0, 256),
+        node_default=16,
+        unset=0,
+    ),
     SettingSpec(
         'split_measure',
+        DecompositionSettings,
         str,
         "Split measure theta: 'area' is the paper's 2D projection measure, 'volume' "
         "uses the product of the parts' three extents.",
-        choices=('area', 'volume'),
+        choices=SPLIT_MEASURES,
     ),
     SettingSpec(
         'rescore_cuts',
+        DecompositionSettings,
         int,
         'Re-score the best K cuts with real box fits (0 = the paper).',
         (0, 32),
     ),
     SettingSpec(
-        'seed', int, 'Random seed of the box fit (results are deterministic).', (0, 2**31 - 1)
+        'seed',
+        DecompositionSettings,
+        int,
+        'Random seed of the box fit (results are deterministic).',
+        (0, 2**31 - 1),
     ),
     # Filtering (voxel grid in numpy or Open3D; statistical outliers with Open3D).
     SettingSpec(
         'voxel_size',
+        FilterSettings,
         float,
         'Voxel down-sampling edge length in metres; 0 turns it off.',
         (0.0, 10.0),
+        node_default=0.005,
     ),
     SettingSpec(
         'voxel_backend',
+        FilterSettings,
         str,
         "Voxel down-sampling implementation: 'numpy' (default, the same centroids as "
         "Open3D's, computed from the decoded float32 points) or 'open3d'.",
-        choices=('numpy', 'open3d'),
+        choices=VOXEL_BACKENDS,
     ),
     SettingSpec(
         'outlier_neighbors',
+        FilterSettings,
         int,
         'Neighbours of the statistical outlier removal; 0 turns it off.',
         (0, 1000),
+        node_default=20,
     ),
     SettingSpec(
         'outlier_std_ratio',
+        FilterSettings,
         float,
         'Statistical outlier removal: drop points whose mean neighbour distance is this '
         'many standard deviations above the mean.',
@@ -96,6 +251,7 @@ SPECS: tuple[SettingSpec, ...] = (
     ),
     SettingSpec(
         'crop_min',
+        FilterSettings,
         list,
         'Lower corner (x, y, z) of a crop box in metres in the cloud frame; empty '
         'turns cropping off.',
@@ -103,6 +259,7 @@ SPECS: tuple[SettingSpec, ...] = (
     ),
     SettingSpec(
         'crop_max',
+        FilterSettings,
         list,
         'Upper corner (x, y, z) of the crop box in metres; empty turns it off.',
         vector_length=3,
@@ -110,48 +267,61 @@ SPECS: tuple[SettingSpec, ...] = (
     # Grasps (paper Section IV-B).
     SettingSpec(
         'gripper_max_width',
+        GraspSettings,
         float,
         'Largest gripper opening in metres; faces needing more are ungraspable.',
         (1e-4, 10.0),
     ),
     SettingSpec(
         'standoff',
+        GraspSettings,
         float,
         'Pre-grasp distance of the gripper from the face centre in metres.',
         (0.0, 10.0),
     ),
     SettingSpec(
         'approach_axis',
+        GraspSettings,
         str,
         'Gripper frame axis that points along the approach direction.',
-        choices=('z', 'x'),
+        choices=APPROACH_AXES,
     ),
     SettingSpec(
         'grasp_strategy',
+        GraspSettings,
         str,
         'Ranking: largest box first, smallest, outermost from the centroid, or nearest '
         'to the sensor.',
-        choices=('largest', 'smallest', 'outermost', 'nearest'),
+        choices=STRATEGIES,
+        field='strategy',
     ),
     SettingSpec(
         'up_direction',
+        GraspSettings,
         list,
         'Unit up vector (x, y, z) in the cloud frame; approaches from below are removed. '
         'Empty: no support filter.',
         vector_length=3,
+        field='up',
+        unset=(),
     ),
     SettingSpec(
         'max_grasps',
+        GraspSettings,
         int,
         'Publish at most this many grasps, best first; 0 publishes all.',
         (0, 10000),
     ),
     # Node behaviour.
     SettingSpec(
-        'publish_tree', bool, 'Also publish the non-leaf boxes of the hierarchy on ~/tree.'
+        'publish_tree',
+        NodeSettings,
+        bool,
+        'Also publish the non-leaf boxes of the hierarchy on ~/tree.',
     ),
     SettingSpec(
         'reliable_input',
+        NodeSettings,
         bool,
         'Subscribe with reliable QoS and a deep queue (lossless bag evaluation) instead '
         'of best effort, keep last 1.',
@@ -161,57 +331,94 @@ SPECS: tuple[SettingSpec, ...] = (
 
 SPEC_BY_NAME: dict[str, SettingSpec] = {spec.name: spec for spec in SPECS}
 
+#: The stages of :class:`PipelineSettings`: field name -> settings class, in pipeline order.
+STAGES: dict[str, type] = {
+    'filtering': FilterSettings,
+    'decomposition': DecompositionSettings,
+    'grasps': GraspSettings,
+    'node': NodeSettings,
+}
+_STAGE_FIELD: dict[type, str] = {stage: name for name, stage in STAGES.items()}
+
+
+def _node_defaults(stage: type) -> Any:
+    """Return the stage's settings with the node's defaults (its own where SPECS says none)."""
+    values = {
+        spec.attribute: spec.to_field(spec.node_default)
+        for spec in SPECS
+        if spec.stage is stage and spec.node_default is not STAGE_DEFAULT
+    }
+    return stage(**values)
+
 
 @dataclass(frozen=True)
 class PipelineSettings:
-    """Every tunable of the pipeline, with its default; :data:`SPECS` describes each field."""
+    """
+    Every setting of the pipeline, by stage; ``PipelineSettings()`` holds the node's defaults.
 
-    gain_threshold: float = 0.94
-    min_points: int = 25
-    max_boxes: int = 16
-    split_measure: str = 'area'
-    rescore_cuts: int = 0
-    seed: int = 0
-    voxel_size: float = 0.005
-    voxel_backend: str = 'numpy'
-    outlier_neighbors: int = 20
-    outlier_std_ratio: float = 2.0
-    crop_min: tuple[float, ...] = ()
-    crop_max: tuple[float, ...] = ()
-    gripper_max_width: float = 0.08
-    standoff: float = 0.05
-    approach_axis: str = 'z'
-    grasp_strategy: str = 'largest'
-    up_direction: tuple[float, ...] = ()
-    max_grasps: int = 0
-    publish_tree: bool = True
-    reliable_input: bool = False
+    :ivar filtering: crop, voxel grid and outlier removal.
+    :ivar decomposition: the fit-and-split decomposition (``decompose``'s arguments).
+    :ivar grasps: the grasp hypotheses (``grasp_hypotheses``' arguments).
+    :ivar node: what only the node uses (the tree topic, the input QoS).
+    """
+
+    filtering: FilterSettings = field(default_factory=lambda: _node_defaults(FilterSettings))
+    decomposition: DecompositionSettings = field(
+        default_factory=lambda: _node_defaults(DecompositionSettings)
+    )
+    grasps: GraspSettings = field(default_factory=lambda: _node_defaults(GraspSettings))
+    node: NodeSettings = field(default_factory=lambda: _node_defaults(NodeSettings))
+
+    @classmethod
+    def paper(cls) -> PipelineSettings:
+        """Return the paper's algorithm: every stage at its own defaults (no filters, no cap)."""
+        return cls(
+            filtering=FilterSettings(),
+            decomposition=DecompositionSettings(),
+            grasps=GraspSettings(),
+            node=NodeSettings(),
+        )
+
+    def value(self, name: str) -> Any:
+        """Return the parameter value of setting `name` (lists for vectors, 0 or [] for None)."""
+        spec = SPEC_BY_NAME[name]
+        stage = getattr(self, _STAGE_FIELD[spec.stage])
+        return spec.to_parameter(getattr(stage, spec.attribute))
+
+    def parameters(self) -> dict[str, Any]:
+        """Return every setting as a parameter value, by name, in :data:`SPECS` order."""
+        return {spec.name: self.value(spec.name) for spec in SPECS}
 
     def updated(self, changes: Mapping[str, Any]) -> PipelineSettings:
         """
-        Return a copy with `changes` applied after validating each of them.
+        Return a copy with `changes` (parameter name -> value) applied, each validated first.
 
         :raises ValueError: naming the first invalid setting and why.
         """
-        normalised = {}
+        by_stage: dict[str, dict[str, Any]] = {}
         for name, value in changes.items():
             reason = validate_setting(name, value)
             if reason is not None:
                 raise ValueError(reason)
-            normalised[name] = _normalise(SPEC_BY_NAME[name], value)
-        settings = replace(self, **normalised)
+            spec = SPEC_BY_NAME[name]
+            by_stage.setdefault(_STAGE_FIELD[spec.stage], {})[spec.attribute] = spec.to_field(
+                value
+            )
+        stages = {
+            name: replace(getattr(self, name), **values) for name, values in by_stage.items()
+        }
+        settings = replace(self, **stages)
         reason = validate_combination(settings)
         if reason is not None:
             raise ValueError(reason)
         return settings
 
 
-def _normalise(spec: SettingSpec, value: Any) -> Any:
-    if spec.kind is list:
-        return tuple(float(v) for v in value)
-    if spec.kind is float:
-        return float(value)
-    return value
+#: Named starting points: the node's defaults and the paper's algorithm.
+PRESETS: dict[str, PipelineSettings] = {
+    'node': PipelineSettings(),
+    'paper': PipelineSettings.paper(),
+}
 
 
 def _is_number(value: Any) -> bool:
@@ -274,18 +481,19 @@ def _check_vector(spec: SettingSpec, value: Any) -> str | None:
 
 def validate_combination(settings: PipelineSettings) -> str | None:
     """Return why settings that are each valid do not fit together, or None."""
-    if bool(settings.crop_min) != bool(settings.crop_max):
+    crop_min, crop_max = settings.filtering.crop_min, settings.filtering.crop_max
+    if bool(crop_min) != bool(crop_max):
         return 'crop_min and crop_max must both be set (3 numbers each) or both empty'
-    if settings.crop_min and any(
-        low > high for low, high in zip(settings.crop_min, settings.crop_max, strict=True)
-    ):
-        return f'crop_min {settings.crop_min} must not exceed crop_max {settings.crop_max}'
+    if crop_min and any(low > high for low, high in zip(crop_min, crop_max, strict=True)):
+        return f'crop_min {crop_min} must not exceed crop_max {crop_max}'
     return None
 
 
-def settings_from_mapping(values: Mapping[str, Any]) -> PipelineSettings:
-    """Build settings from name -> value pairs (defaults for the rest), validating each."""
-    return PipelineSettings().updated(values)
+def settings_from_mapping(
+    values: Mapping[str, Any], base: PipelineSettings | None = None
+) -> PipelineSettings:
+    """Build settings from name -> value pairs over `base` (the node's defaults), validated."""
+    return (base if base is not None else PipelineSettings()).updated(values)
 
 
 def parse_assignments(assignments: Iterable[str]) -> dict[str, Any]:
@@ -296,8 +504,6 @@ def parse_assignments(assignments: Iterable[str]) -> dict[str, Any]:
 
     :raises ValueError: for a malformed assignment or an unknown name.
     """
-    import yaml
-
     parsed: dict[str, Any] = {}
     for text in assignments:
         name, separator, raw = text.partition(':=')
@@ -316,12 +522,97 @@ def parse_assignments(assignments: Iterable[str]) -> dict[str, Any]:
     return parsed
 
 
+def format_assignment(name: str, value: Any) -> str:
+    """Return ``name:=value`` that :func:`parse_assignments` (and ROS) reads back as `value`."""
+    return f'{name}:={_yaml_value(value)}'
+
+
+def read_params_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """
+    Return the ``ros__parameters`` of a ROS parameter file (the first node entry with some).
+
+    :raises ValueError: when the file has no ``<node>: ros__parameters:`` mapping.
+    :raises OSError: when it cannot be read.
+    """
+    with open(path) as handle:
+        document = yaml.safe_load(handle)
+    if isinstance(document, dict):
+        for entry in document.values():
+            if isinstance(entry, dict) and isinstance(entry.get('ros__parameters'), dict):
+                values = dict(entry['ros__parameters'])
+                for name, value in values.items():
+                    spec = SPEC_BY_NAME.get(name)
+                    if spec is not None and spec.kind is float and _is_number(value):
+                        values[name] = float(value)
+                return values
+    raise ValueError(f'{path} has no <node>: ros__parameters: mapping')
+
+
 def defaults() -> dict[str, Any]:
-    """Return the default value of every setting, by name (lists for vectors)."""
-    base = PipelineSettings()
+    """Return the node's default value of every setting, by name (lists for vectors)."""
+    return PipelineSettings().parameters()
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, list):
+        return '[' + ', '.join(repr(float(v)) for v in value) + ']'
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def parameters_yaml(settings: PipelineSettings, header: str, width: int = 95) -> str:
+    """
+    Return a ROS parameter file (``/**: ros__parameters:``) of `settings`, every entry described.
+
+    ``config/decomposer.yaml`` (the node's defaults) and ``config/paper.yaml`` are made by it
+    (``tools/make_config.py``); a test checks that they are up to date.
+
+    :param settings: the values to write.
+    :param header: comment lines (without ``#``) put at the top.
+    :param width: the line length to wrap the descriptions at.
+    """
+    lines = [f'# {line}'.rstrip() for line in header.strip().splitlines()]
+    lines += ['/**:', '  ros__parameters:']
+    for spec in SPECS:
+        lines += textwrap.wrap(
+            spec.description, width, initial_indent='    # ', subsequent_indent='    # '
+        )
+        value = settings.value(spec.name)
+        if spec.kind is list and not value:
+            placeholder = '[x, y, z]' if spec.vector_length == 3 else '[...]'
+            lines.append(f'    # {spec.name}: {placeholder}   (unset: off)')
+        else:
+            lines.append(f'    {spec.name}: {_yaml_value(value)}')
+    return '\n'.join(lines) + '\n'
+
+
+#: The parameter files in ``config/``: file name -> (preset, header comment).
+CONFIG_FILES: dict[str, tuple[str, str]] = {
+    'decomposer.yaml': (
+        'node',
+        """
+Default parameters of the mvbb_ros decomposer node (every one is declared with a
+description and range; `ros2 param describe /decomposer <name>` shows them).
+Use: ros2 run mvbb_ros decomposer --ros-args --params-file <this file>
+Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test checks it).
+""",
+    ),
+    'paper.yaml': (
+        'paper',
+        """
+The paper's algorithm (Huebner et al. 2008) in the decomposer node: no filters, min_points 10,
+no cap on the boxes; the same as `mvbb decompose --preset paper` and decompose() in Python.
+Use: ros2 run mvbb_ros decomposer --ros-args --params-file <this file>
+Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test checks it).
+""",
+    ),
+}
+
+
+def config_files() -> dict[str, str]:
+    """Return the text of every parameter file of ``config/``, by file name."""
     return {
-        field.name: list(getattr(base, field.name))
-        if isinstance(getattr(base, field.name), tuple)
-        else getattr(base, field.name)
-        for field in fields(base)
+        name: parameters_yaml(PRESETS[preset], header)
+        for name, (preset, header) in CONFIG_FILES.items()
     }

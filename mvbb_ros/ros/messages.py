@@ -163,7 +163,7 @@ def output_messages(
     :param result: the pipeline result, or None when processing failed.
     :param header: the input cloud's header; every message is stamped with it.
     :param settings: the settings in force (``publish_tree`` adds the ``tree`` message).
-    :return: ``boxes`` and ``grasps``, and ``tree`` when ``settings.publish_tree``, in
+    :return: ``boxes`` and ``grasps``, and ``tree`` when ``settings.node.publish_tree``, in
         publication order.
     """
     decomposition = None if result is None else result.decomposition
@@ -171,7 +171,7 @@ def output_messages(
     counts = [] if decomposition is None else decomposition.leaf_point_indices
     labels = [f'{i}: {len(indices)} pts' for i, indices in enumerate(counts)]
     outputs: dict[str, Any] = {'boxes': box_markers(leaves, header, labels=labels)}
-    if settings.publish_tree:
+    if settings.node.publish_tree:
         inner = (
             []
             if decomposition is None

@@ -119,7 +119,7 @@ class DecomposerNode(Node):
         self._declare_parameters()
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        reliable = self._settings.reliable_input
+        reliable = self._settings.node.reliable_input
         input_qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
             depth=RELIABLE_INPUT_DEPTH if reliable else 1,
@@ -150,17 +150,17 @@ class DecomposerNode(Node):
         self.get_logger().info(
             f'listening on {self._subscription.topic_name} '
             f'({"reliable" if reliable else "best effort, keep last 1"}); '
-            f'gain_threshold={self._settings.gain_threshold}, '
-            f'min_points={self._settings.min_points}'
+            f'gain_threshold={self._settings.decomposition.gain_threshold}, '
+            f'min_points={self._settings.decomposition.min_points}'
         )
 
     # Parameters ----------------------------------------------------------------------------------
 
     def _declare_parameters(self) -> None:
         for spec in SPECS:
-            default = getattr(self._settings, spec.name)
-            if spec.kind is list:
-                default = Parameter.Type.DOUBLE_ARRAY if not default else list(default)
+            default = self._settings.value(spec.name)
+            if spec.kind is list and not default:
+                default = Parameter.Type.DOUBLE_ARRAY  # unset: an empty array has no type
             self.declare_parameter(spec.name, default, parameter_descriptor(spec))
         values = {spec.name: self._parameter_value(spec) for spec in SPECS}
         self._settings = PipelineSettings().updated(values)

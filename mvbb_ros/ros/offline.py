@@ -207,7 +207,7 @@ def process_bag(
             if with_input:
                 out.add_topic(cloud_topic, CLOUD_TYPE)
             for suffix, message_class in OUTPUT_TYPES.items():
-                if suffix != 'tree' or settings.publish_tree:
+                if suffix != 'tree' or settings.node.publish_tree:
                     out.add_topic(f'{prefix}/{suffix}', ros_type_name(message_class))
             if on_start is not None:
                 on_start(bag.count([cloud_topic]))

@@ -1,0 +1,72 @@
+"""`mvbb decompose FILE --json OUT` writes the leaf boxes that the node publishes for the cloud."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from builtin_interfaces.msg import Time
+from mvbb_ros.cli.main import main
+from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.ros.encode import create_cloud_xyz
+from mvbb_ros.ros.messages import MIN_MARKER_SCALE
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from ros_graph import Graph
+from visualization_msgs.msg import Marker
+
+pytestmark = pytest.mark.ros
+
+
+def _published_boxes(parameters: list[Parameter], points: np.ndarray) -> list[np.ndarray]:
+    """Publish `points` to a node with `parameters`; return its CUBE scales, by marker id."""
+    graph = Graph(parameter_overrides=parameters)
+    try:
+        cloud = create_cloud_xyz(points, frame_id='camera_optical_frame')
+        cloud.header.stamp = Time(sec=7, nanosec=0)
+        graph.publish_until_answered(graph.publisher(), cloud)
+        assert graph.spin_until(
+            lambda: any(b.markers[0].header.stamp.sec == 7 for b in graph.boxes)
+        )
+        boxes = next(b for b in reversed(graph.boxes) if b.markers[0].header.stamp.sec == 7)
+    finally:
+        graph.close()
+    cubes = [m for m in boxes.markers if m.type == Marker.CUBE and m.action == Marker.ADD]
+    return [np.array([m.scale.x, m.scale.y, m.scale.z]) for m in sorted(cubes, key=lambda m: m.id)]
+
+
+def _written_boxes(path: Path) -> list[np.ndarray]:
+    """Return the leaf extents of a `mvbb decompose --json` file, as the node's CUBEs draw them."""
+    document = json.loads(path.read_text())
+    extents = [document['nodes'][index]['box']['extents'] for index in document['leaves']]
+    return [np.maximum(np.array(values), MIN_MARKER_SCALE) for values in extents]
+
+
+@pytest.mark.parametrize(
+    ('arguments', 'parameters'),
+    [
+        ([], []),
+        (
+            ['--preset', 'paper'],
+            [
+                Parameter('min_points', value=10),
+                Parameter('max_boxes', value=0),
+                Parameter('voxel_size', value=0.0),
+                Parameter('outlier_neighbors', value=0),
+            ],
+        ),
+    ],
+    ids=['node defaults', 'paper preset'],
+)
+def test_decompose_writes_the_boxes_the_node_publishes(tmp_path, arguments, parameters):
+    points = segmented_object_cloud('mug', seed=0)  # float32, as a depth camera sends them
+    cloud_file, out = tmp_path / 'mug.npy', tmp_path / 'mug.json'
+    np.save(cloud_file, points)
+    assert main(['decompose', str(cloud_file), '--json', str(out), *arguments]) == 0
+    written = _written_boxes(out)
+    published = _published_boxes(parameters, points)
+    assert len(written) == len(published) >= 3, 'several boxes, the same count'
+    for mine, theirs in zip(written, published, strict=True):
+        np.testing.assert_allclose(mine, theirs, rtol=1e-12)
+        assert float(np.prod(mine)) == pytest.approx(float(np.prod(theirs)), rel=1e-12)
