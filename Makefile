@@ -18,9 +18,10 @@ test: setup
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/python -m mypy mvbb_ros
 
 bench: setup
 	$(BIN)/python benchmarks/mvbb.py
 
 clean:
-	rm -rf build install log .pytest_cache .ruff_cache .hypothesis out
+	rm -rf build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis out

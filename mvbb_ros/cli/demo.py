@@ -23,7 +23,7 @@ stops its subprocesses on any exit (error, SIGINT, SIGTERM).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, MutableMapping, Sequence
 import contextlib
 import os
 from pathlib import Path
@@ -87,7 +87,7 @@ def _interrupts_deferred() -> Iterator[None]:
             raise KeyboardInterrupt(f'signal {pending}')
 
 
-def demo_environment(environ: dict[str, str] | None = None) -> dict[str, str]:
+def demo_environment(environ: MutableMapping[str, str] | None = None) -> dict[str, str]:
     """
     Give the demo its own graph: a random ROS_DOMAIN_ID and localhost-only discovery.
 
@@ -95,10 +95,10 @@ def demo_environment(environ: dict[str, str] | None = None) -> dict[str, str]:
 
     :return: the two values in force.
     """
-    environ = os.environ if environ is None else environ
-    environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
-    environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return {name: environ[name] for name in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
+    target = os.environ if environ is None else environ
+    target.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
+    target.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    return {name: target[name] for name in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
 
 
 def demo_clouds(frames: int, *, seed: int = DEMO_SEED) -> list[tuple[int, Float32Array]]:

@@ -12,7 +12,7 @@ load ROS.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 import json
 from pathlib import Path
@@ -207,7 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _format_vector(values: Sequence[float]) -> str:
+def _format_vector(values: Iterable[float]) -> str:
     return ' '.join(f'{value:9.4f}' for value in values)
 
 

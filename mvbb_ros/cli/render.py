@@ -515,7 +515,12 @@ def _draw_boxes(ax: Axes, corners: list[FloatArray], hidden: list[list[bool]]) -
                     colors.append(BOX_COLORS[index % len(BOX_COLORS)])
         if not segments:
             continue
-        style = {'linewidths': 0.9, 'linestyles': (0, (3, 2)), 'alpha': 0.75, 'zorder': 2}
+        style: dict[str, Any] = {
+            'linewidths': 0.9,
+            'linestyles': (0, (3, 2)),
+            'alpha': 0.75,
+            'zorder': 2,
+        }
         if not behind:
             style = {'linewidths': 1.8, 'linestyles': 'solid', 'alpha': 1.0, 'zorder': 3}
         ax.add_collection(LineCollection(segments, colors=colors, capstyle='round', **style))

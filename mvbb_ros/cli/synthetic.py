@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 import math
+from typing import TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -399,7 +400,7 @@ def place_objects(
     """Build a scene with one object of each kind at the given object-to-world poses (4x4, m)."""
     if len(kinds) != len(poses):
         raise ValueError(f'got {len(kinds)} kinds but {len(poses)} poses')
-    objects = []
+    objects: list[SceneObject] = []
     for kind, pose in zip(kinds, poses, strict=True):
         transform = np.asarray(pose, dtype=np.float64)
         if transform.shape != (4, 4):
@@ -460,7 +461,7 @@ def make_scene(
 # Ray casting -------------------------------------------------------------------------------------
 
 
-MeshesOrScene = Scene | o3d.geometry.TriangleMesh | Sequence[o3d.geometry.TriangleMesh]
+MeshesOrScene: TypeAlias = Scene | o3d.geometry.TriangleMesh | Sequence[o3d.geometry.TriangleMesh]
 
 
 class _Caster:

@@ -312,7 +312,7 @@ def compare_grasp_sets(
     hand = gripper or ParallelJawGripper.for_object(target.diameter)
     cloud = target.vertices if points is None else np.asarray(points, dtype=np.float64)
     off = 0.05 * target.diameter if standoff is None else float(standoff)
-    quality = {
+    quality: dict[str, Any] = {
         'friction': friction,
         'cone_edges': cone_edges,
         'contact_radius': contact_radius,
@@ -332,7 +332,7 @@ def compare_grasp_sets(
             'points': len(cloud),
         },
     )
-    hypothesis_options = {'gripper_max_width': hand.max_width, 'standoff': off}
+    hypothesis_options: dict[str, Any] = {'gripper_max_width': hand.max_width, 'standoff': off}
 
     if spherical_step is not None:
         started = time.perf_counter()

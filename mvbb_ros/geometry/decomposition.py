@@ -520,10 +520,11 @@ def decompose(
                 # Best first: every other waiting split gains less, so each is refused too.
                 while waiting:
                     other = waiting.pop()
-                    if splits[other] is None:
+                    other_split = splits[other]
+                    if other_split is None:
                         drafts[other].stop_reason = 'no_cut'
                     else:
-                        _record_gain(drafts[other], splits[other], other, leaf_volumes)
+                        _record_gain(drafts[other], other_split, other, leaf_volumes)
                         drafts[other].stop_reason = 'gain'
             continue
         if not any(kept):

@@ -393,6 +393,7 @@ def read_points(cloud: Any) -> np.ndarray:
     if view is None:
         return np.empty((0, 3), dtype=dtype)
     packed = _packed_float_view(layout, data)
+    columns: tuple[np.ndarray, ...]
     if packed is not None:
         columns = (packed[:, 0], packed[:, 1], packed[:, 2])
     else:

@@ -171,7 +171,7 @@ def filter_points(
         pts = pts.astype(np.float64)
     pts = pts.reshape(-1, 3)
     count_in = len(pts)
-    if crop_min is not None and len(crop_min) and crop_max is not None and len(crop_max):
+    if crop_min is not None and np.size(crop_min) and crop_max is not None and np.size(crop_max):
         low = np.asarray(crop_min, dtype=np.float64)
         high = np.asarray(crop_max, dtype=np.float64)
         inside = (pts[:, 0] >= low[0]) & (pts[:, 0] <= high[0])

@@ -24,7 +24,7 @@ import os
 from pathlib import Path
 import shutil
 from types import TracebackType
-from typing import Any
+from typing import Any, Final
 
 from builtin_interfaces.msg import Time
 from mvbb_ros.cli.atomic import atomic_path
@@ -39,7 +39,7 @@ from sensor_msgs.msg import PointCloud2
 #: The message type the tools read, as rosbags names it for ROS 1 and ROS 2 bags alike.
 CLOUD_TYPE = 'sensor_msgs/msg/PointCloud2'
 #: rosbag2 metadata version written (the one ROS 2 Jazzy writes and reads).
-ROSBAG2_VERSION = 8
+ROSBAG2_VERSION: Final = 8
 #: Output storage formats: MCAP is Jazzy's default and opens directly in Foxglove.
 STORAGE_FORMATS = ('mcap', 'sqlite3')
 

@@ -271,7 +271,7 @@ def _copy_cloud(
 def _rclpy_data(data: np.ndarray) -> array.array:
     # rclpy checks every element of a non-array.array value in Python; array.array is taken as is.
     values = array.array('B')
-    values.frombytes(data)
+    values.frombytes(data.data)  # the array's buffer, not a copy
     return values
 
 

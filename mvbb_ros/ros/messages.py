@@ -16,7 +16,7 @@ publishes them and `mvbb bag process` writes them, so both produce the same mess
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, TYPE_CHECKING
 
 from builtin_interfaces.msg import Duration
@@ -56,7 +56,7 @@ def _color(index: int, alpha: float) -> ColorRGBA:
     return ColorRGBA(r=red, g=green, b=blue, a=alpha)
 
 
-def _pose(position: Sequence[float], quaternion: Sequence[float]) -> Pose:
+def _pose(position: Iterable[float], quaternion: Iterable[float]) -> Pose:
     pose = Pose()
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in position)
     (

@@ -74,13 +74,12 @@ def parameter_descriptor(spec: SettingSpec) -> ParameterDescriptor:
         description=spec.description,
         read_only=spec.read_only,
     )
-    if spec.value_range is not None and spec.kind is float:
-        low, high = spec.value_range
+    low, high = spec.value_range or (None, None)
+    if low is not None and high is not None and spec.kind is float:
         descriptor.floating_point_range = [
             FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)
         ]
-    elif spec.value_range is not None and spec.kind is int:
-        low, high = spec.value_range
+    elif low is not None and high is not None and spec.kind is int:
         descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
     if spec.choices:
         descriptor.additional_constraints = 'one of: ' + ', '.join(spec.choices)
@@ -289,7 +288,7 @@ class DecomposerNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until SIGINT or shutdown; return 0 on a clean exit."""
-    rclpy.init(args=args)
+    rclpy.init(args=None if args is None else list(args))
     node = None
     try:
         node = DecomposerNode()
