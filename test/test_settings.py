@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import fields
 import json
 import typing
 
@@ -50,7 +49,14 @@ def test_every_spec_sets_a_typed_field_of_a_stage():
             assert spec.node_default != spec.stage_default, f'{spec.name}: written twice'
     names = [spec.name for spec in SPECS]
     assert len(names) == len(set(names))
-    assert [field.name for field in fields(PipelineSettings)] == list(STAGES)
+    assert list(STAGES.values()) == [
+        FilterSettings,
+        DecompositionSettings,
+        GraspSettings,
+        NodeSettings,
+    ], 'pipeline order'
+    for stage in STAGES.values():
+        assert any(spec.stage is stage for spec in SPECS), f'{stage.__name__} has no setting'
 
 
 def test_choice_lists_are_defined_once_with_their_stage():

@@ -2,127 +2,13 @@
 Face-approach grasp hypotheses on the boxes of a decomposition (plain numpy/scipy, no ROS).
 
 Huebner et al. (ICRA 2008), Sections IV-B and V: every face of every leaf box gives four
-hypotheses; occluded and ungraspable faces are removed; the rest are ranked by a task strategy.
-
-Units are those of the boxes (metres for sensor data). The shared GraspIt! models are in
-millimetres: scale every length parameter (gripper width, standoff, tolerances, clearance) with
-them.
-
-Hypotheses
-----------
-For box ``i`` and face ``f`` (index into :data:`mvbb_ros.geometry.box.FACE_NAMES`: +a, -a, +b, -b,
-+c, -c, where a, b, c are the box axes, the columns of ``Box.rotation``), with outward unit normal
-``n``:
-
-* ``position = face_centre + standoff * n``: the pre-grasp pose of the gripper frame origin
-  (take it as the TCP, between the fingertips), ``standoff`` off the face centre;
-* ``approach = -n``: the gripper moves along the negative face normal towards the face;
-* ``closing``: the fingers close along a face edge. Roll 0 closes along the next box axis in
-  cyclic order (face on axis k: axis (k + 1) mod 3, so faces +-a close along b, +-b along c,
-  +-c along a); roll ``r`` is that direction turned by ``r`` degrees about ``approach``
-  (right-hand rule), for r = 0, 90, 180, 270: so 0 and 180 close along one edge, 90 and 270
-  along the other, in both senses. One box gives 6 x 4 = 24 hypotheses;
-* ``width``: the opening the gripper needs, the box extent along ``closing`` (the distance
-  between the two opposite faces the fingers close on). Hypotheses wider than
-  ``gripper_max_width`` are removed (equal is kept).
-
-Gripper pose convention
------------------------
-``quaternion`` (x, y, z, w, w >= 0, as in ROS messages) is the orientation of the gripper frame in
-the boxes' frame. Its rotation matrix has the gripper axes as columns:
-
-====================  =====================  =====================  =========================
-``approach_axis``     gripper x              gripper y              gripper z
-====================  =====================  =====================  =========================
-``'z'`` (default)     closing x approach     closing                approach
-``'x'``               approach               closing                approach x closing
-====================  =====================  =====================  =========================
-
-So with the default the gripper's +z axis points from the palm towards the fingertips (the
-direction of motion) and the fingers open and close along its y axis, as for the Franka Hand
-(``panda_hand_tcp``), the Robotiq 2F grippers and most ROS parallel-jaw gripper URDFs. Choose
-``'x'`` for grippers whose +x axis points along the fingers (the ROS convention for tool frames
-such as ``tool0`` on some arms and the ``grasping_frame`` used by several MoveIt examples). The
-closing axis is the gripper y axis in both conventions; both frames are right-handed.
-
-Occlusion (exact)
------------------
-A face of box ``i`` is *occluded* when another leaf box ``j`` covers or touches it. Precisely:
-the face rectangle is inset by ``tol`` from its four edges and swept ``tol`` outwards along its
-normal, giving a thin slab in box ``i``'s frame (from the face plane to ``tol`` in front of it);
-the face is occluded when that closed slab and the closed box ``j`` intersect, decided exactly by
-the separating-axis test for two oriented boxes (15 candidate axes, :func:`boxes_intersect`).
-Hence:
-
-* box ``j`` on the face or within ``tol`` in front of it, beyond a rim strip ``tol`` wide,
-  occludes it; so does a box ``j`` that overlaps box ``i`` through the face plane, and a box
-  ``i`` that lies inside ``j`` loses every face;
-* a box ``j`` inside box ``i`` (not reaching the face plane) does not occlude its faces, and
-  neither does a neighbour that only shares an edge or a corner of the face (a box stacked on
-  top does not occlude the side faces below it).
-
-``tol`` is ``contact_tolerance`` when given (absolute, in the boxes' units); otherwise it is
-``contact_fraction`` (default 0.1) of the smaller *size* of the two boxes, where a box's size is
-its middle extent (:func:`box_sizes`; a flat box, fitted to a planar patch or a ring of mesh
-vertices, keeps the size of its face). A floor of 1e-9 of the scene size (plus coordinate rounding)
-is always added, and the slab also reaches that floor behind the face plane, so that exact contact
-(coincident planes) does not depend on rounding. The tolerance is both the depth of the slab (gaps
-up to ``tol`` count as touching) and the rim inset, so a neighbour meeting the face only along an
-edge occludes it only when its surface makes less than 45 degrees with the face, and a neighbour
-that overlaps the face by less than ``tol`` at its rim does not occlude it.
-
-Why 0.1 of the middle extent (measured with :func:`mvbb_ros.geometry.decomposition.decompose` on
-the shared bunny, Homer, duck, mug and flask vertex models at t = 0.90, 0.94 and 0.98, 15
-decompositions, 1,020 faces): boxes from a split are fitted separately, so siblings overlap (the
-dense models) or leave a gap of about the sampling step across the cut. The smallest non-zero
-extent is no scale for that: it is ~0 for the flat boxes of planar patches and vertex rings.
-Against the fraction of each face lying inside other leaves (a 21 x 21 sample grid), the
-fraction 0.1 keeps no face that is 15 % or more covered (0.2 keeps 2) and occludes 43 faces that
-are covered by a sliver of 0-5 % at the rim (0.02: 74; 0.05: 54). Sensor clouds leave sibling
-gaps of a few millimetres, under 0.1 of a box a few centimetres wide. The GraspIt! vertex models
-are sampled in rings up to ~15 mm apart (sibling gaps 0.18-0.4 of the box size): pass
-``contact_tolerance`` of about that ring spacing for them.
-
-Support (ungraspable from below)
---------------------------------
-``up`` is the unit up direction in the boxes' frame; ``support_plane`` is (a, b, c, d) with the
-plane ``a x + b y + c z + d = 0`` and (a, b, c) pointing up (normalised here). When only the plane
-is given, ``up`` is its normal; when both are given, ``up`` is used for the direction test.
-
-* Direction test (``up`` or plane): a hypothesis approaching upwards by more than
-  ``max_approach_elevation_deg`` (default 45) above the horizontal is removed, i.e. when
-  ``dot(approach, up) > sin(max_approach_elevation_deg)``. With the default, this removes a face
-  exactly when its outward normal is within 45 degrees of down, which is at most one face per box
-  (its bottom face), whatever the tilt of the box; side faces of tilted boxes are kept.
-* Clearance test (plane only): the hypothesis is removed when the pre-grasp ``position`` or
-  either finger at the face, ``face_centre +- (width / 2) * closing``, lies less than
-  ``support_clearance`` (default 0.01, half a finger pad) above the plane. This removes, for
-  example, side grasps closing vertically around a box that rests on the table. Finger length is
-  not modelled.
-
-Ranking strategies
-------------------
-The score is a property of the box, min-max normalised to [0, 1] over all leaf boxes (the best
-box scores 1, the worst 0, all 1 when every box ties), so it does not depend on the filters:
-
-* ``'largest'`` (default): largest volume first, for a stable grasp to transport the object
-  (the paper's first task example, and the usual pick-and-place case);
-* ``'smallest'``: smallest volume first, to show the object to a viewer (least occluding grasp);
-* ``'outermost'``: box centre farthest from the object's centroid first, to hand the object over.
-  The centroid is the mean of the decomposition's kept points when it has them (``.points``,
-  restricted to ``.kept_point_indices`` when present: the points of boxes dropped as noise do
-  not count), else the volume-weighted mean of the box centres (plain mean when every volume is
-  zero);
-* ``'nearest'``: box centre closest to ``sensor_origin`` (default the origin of the boxes'
-  frame, which is the sensor for a cloud in the sensor frame) first.
-
-The list is sorted by that key, best first. Keys are first rounded to 1e-9 of the largest key
-magnitude, so boxes whose volumes or distances differ only by floating-point rounding tie. Ties
-(equal keys, and the 24 hypotheses of one box) are broken by box index, then face index
-(FACE_NAMES order), then roll (0, 90, 180, 270).
-
-Per-filter counts: ``grasp_hypotheses(..., return_stats=True)`` also returns a
-:class:`GraspStats`; the filters apply in the order occlusion, width, support.
+hypotheses (approach along the negative face normal from ``standoff`` off the face centre, the
+fingers closing along one face edge or the other, in both senses); faces covered by or touching
+another box, faces wider than the gripper and approaches from below the support are removed;
+the rest are ranked by a task strategy (largest, smallest, outermost or nearest box first).
+:func:`grasp_hypotheses` returns them, :func:`grasp_filter_counts` counts what each filter
+removes. The exact rules (pose convention, occlusion tolerance, support tests, tie-breaking) are
+in ``docs/grasp_rules.md``. Units are those of the boxes (metres for sensor data).
 """
 
 from __future__ import annotations
@@ -175,8 +61,8 @@ class Grasp:
     One grasp hypothesis: a pre-grasp gripper pose in the boxes' frame.
 
     :ivar position: (3,) gripper frame origin, ``standoff`` off the face centre along its normal.
-    :ivar quaternion: (4,) unit orientation (x, y, z, w), w >= 0, of the gripper frame (see the
-        module docstring for which gripper axis approaches and which closes).
+    :ivar quaternion: (4,) unit orientation (x, y, z, w), w >= 0, of the gripper frame (which
+        gripper axis approaches and which closes: ``docs/grasp_rules.md``).
     :ivar approach: (3,) unit direction the gripper moves in, the negative outward face normal.
     :ivar closing: (3,) unit direction the fingers close along, a face edge direction.
     :ivar width: opening the gripper needs, the box extent along ``closing`` (boxes' units).
@@ -391,7 +277,7 @@ def _occluded_faces(
     contact_tolerance: float | None,
     contact_fraction: float,
 ) -> BoolArray:
-    """Return (B, 6) whether each face is occluded by another box (see the module docstring)."""
+    """Return (B, 6) whether each face is occluded by another box (``docs/grasp_rules.md``)."""
     count = len(centers)
     occluded = np.zeros((count, len(FACE_NAMES)), dtype=bool)
     if count < 2:

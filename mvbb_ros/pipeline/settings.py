@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, fields, MISSING, replace
 import math
 import os
 import textwrap
+import typing
 from typing import Any, get_args, Literal
 
 from mvbb_ros.geometry.decomposition import DecompositionSettings
@@ -331,15 +332,6 @@ SPECS: tuple[SettingSpec, ...] = (
 
 SPEC_BY_NAME: dict[str, SettingSpec] = {spec.name: spec for spec in SPECS}
 
-#: The stages of :class:`PipelineSettings`: field name -> settings class, in pipeline order.
-STAGES: dict[str, type] = {
-    'filtering': FilterSettings,
-    'decomposition': DecompositionSettings,
-    'grasps': GraspSettings,
-    'node': NodeSettings,
-}
-_STAGE_FIELD: dict[type, str] = {stage: name for name, stage in STAGES.items()}
-
 
 def _node_defaults(stage: type) -> Any:
     """Return the stage's settings with the node's defaults (its own where SPECS says none)."""
@@ -413,6 +405,13 @@ class PipelineSettings:
             raise ValueError(reason)
         return settings
 
+
+#: The stages of :class:`PipelineSettings`: field name -> settings class, in pipeline order.
+STAGES: dict[str, type] = {
+    stage.name: typing.get_type_hints(PipelineSettings)[stage.name]
+    for stage in fields(PipelineSettings)
+}
+_STAGE_FIELD: dict[type, str] = {stage: name for name, stage in STAGES.items()}
 
 #: Named starting points: the node's defaults and the paper's algorithm.
 PRESETS: dict[str, PipelineSettings] = {

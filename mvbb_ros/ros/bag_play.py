@@ -22,12 +22,21 @@ from collections.abc import Callable
 from dataclasses import dataclass
 import os
 from pathlib import Path
+import sys
 import threading
 import time
-from typing import Any, TextIO
+from typing import TextIO
 
+from builtin_interfaces.msg import Time
 from mvbb_ros.cli.progress import ProgressBar
 from mvbb_ros.ros.bag import BagCloud, CloudBag
+import rclpy
+from rclpy.context import Context
+from rclpy.duration import Duration
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import PointCloud2
 
 #: Default rate of /clock messages, Hz (as ``ros2 bag play --clock``).
 DEFAULT_CLOCK_HZ = 40.0
@@ -67,10 +76,7 @@ def wall_offset_s(timestamp_ns: int, first_ns: int, rate: float) -> float:
     return max(0, timestamp_ns - first_ns) / 1e9 / rate
 
 
-def _clock_message(bag_time_ns: int) -> Any:
-    from builtin_interfaces.msg import Time
-    from rosgraph_msgs.msg import Clock
-
+def _clock_message(bag_time_ns: int) -> Clock:
     sec, nanosec = divmod(int(bag_time_ns), 1_000_000_000)
     return Clock(clock=Time(sec=sec, nanosec=nanosec))
 
@@ -79,13 +85,6 @@ class _Player:
     """The ROS side of a playback: one node with a publisher per cloud topic and /clock."""
 
     def __init__(self, topics: list[str], clock: bool) -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from rclpy.signals import SignalHandlerOptions
-        from rosgraph_msgs.msg import Clock
-        from sensor_msgs.msg import PointCloud2
-
         self.context = Context()
         # Signals stay ours: SIGINT ends the playback cleanly instead of raising in rclpy.
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
@@ -112,8 +111,6 @@ class _Player:
             self.clock.publish(_clock_message(bag_time_ns))
 
     def wait_for_acks(self, timeout_s: float) -> None:
-        from rclpy.duration import Duration
-
         deadline = time.monotonic() + timeout_s
         for publisher in (*self.clouds.values(), self.clock):
             if publisher is not None:
@@ -121,8 +118,6 @@ class _Player:
                 publisher.wait_for_all_acked(Duration(seconds=remaining))
 
     def close(self) -> None:
-        import rclpy
-
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 
@@ -160,8 +155,6 @@ def play_bag(
     :raises mvbb_ros.ros.bag.BagError: for a missing or unreadable bag, or a bad topic.
     :raises ValueError: for a rate or clock rate that is not positive.
     """
-    import sys
-
     if not rate > 0.0:
         raise ValueError(f'rate must be > 0, got {rate}')
     if clock and not clock_hz > 0.0:

@@ -17,20 +17,18 @@ publishes them and `mvbb bag process` writes them, so both produce the same mess
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any, TYPE_CHECKING
+from typing import Any
 
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
 from mvbb_ros.geometry.box import Box, EDGES
 from mvbb_ros.geometry.grasps import Grasp
+from mvbb_ros.pipeline.process import PipelineResult
+from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
-
-if TYPE_CHECKING:
-    from mvbb_ros.pipeline.process import PipelineResult
-    from mvbb_ros.pipeline.settings import PipelineSettings
 
 #: Distinct box colours (red, green, blue in 0..1), cycled by box index.
 PALETTE: tuple[tuple[float, float, float], ...] = (
