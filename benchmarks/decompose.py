@@ -68,12 +68,12 @@ VARIANTS: dict[str, dict[str, object]] = {
 
 
 def mvbb_identity() -> str:
-    """Name the MVBB implementation: first docstring line and git blob hash of mvbb.py."""
+    """Name the MVBB implementation: first docstring line and git blob hash of fit.py."""
     path = Path(fit_module.__file__)
     data = path.read_bytes()
     blob = hashlib.sha1(b'blob %d\0' % len(data) + data).hexdigest()[:12]
     summary = (fit_module.__doc__ or '').strip().splitlines()[0]
-    return f'{summary} (mvbb.py blob {blob})'
+    return f'{summary} (fit.py blob {blob})'
 
 
 def load(*relative: str) -> np.ndarray:
