@@ -70,6 +70,8 @@ class Grasp:
     :ivar face: face index into :data:`mvbb_ros.geometry.box.FACE_NAMES` (+a, -a, +b, -b, +c, -c).
     :ivar roll_deg: roll of the closing direction about ``approach``: 0, 90, 180 or 270.
     :ivar score: strategy score in [0, 1] of the box (higher is better; list order is the rank).
+    :ivar object_index: which object of the cloud the grasp is on (0 when the cloud is one
+        object; the pipeline numbers the objects it separates).
     """
 
     position: FloatArray
@@ -81,6 +83,7 @@ class Grasp:
     face: int
     roll_deg: int
     score: float
+    object_index: int = 0
 
     @property
     def face_name(self) -> str:
@@ -105,6 +108,7 @@ class Grasp:
             'face_name': self.face_name,
             'roll_deg': self.roll_deg,
             'score': self.score,
+            'object_index': self.object_index,
         }
 
     def __repr__(self) -> str:

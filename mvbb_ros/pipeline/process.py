@@ -44,6 +44,11 @@ class PipelineResult:
         return [] if self.decomposition is None else list(self.decomposition.leaves)
 
     @property
+    def leaf_object_indices(self) -> list[int]:
+        """Return the object index of each of :attr:`leaves` (one object: all 0)."""
+        return [0] * len(self.leaves)
+
+    @property
     def total_ms(self) -> float:
         """Return the total processing time in milliseconds."""
         return float(sum(self.timings_ms.values()))
