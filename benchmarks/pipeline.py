@@ -20,9 +20,9 @@ or for the float32 -> float64 copy). ``ratio`` is our median total over the chai
 Frames:
 
 - ``camera 640x480``: a 640 x 480 organized frame from the package's virtual depth camera
-  (:mod:`mvbb_ros.cli.synthetic`), close enough that the mug fills most of the view (about 250k of
-  the 307k pixels); pixels off the object are NaN, as an organized segmentation delivers them.
-  Four noise seeds.
+  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.cli.synthetic` scene), close enough
+  that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object are
+  NaN, as an organized segmentation delivers them. Four noise seeds.
 - ``organized 300k``: :func:`mvbb_ros.cli.synthetic.organized_frame` with 300 000 object points
   (1214 x 910). Four noise seeds.
 - every real scan in the shared ``scans`` folder and the Bunny's vertices, as float32 clouds;
@@ -78,16 +78,17 @@ def camera_frame(seed: int, fill: float = 2.0):
     import math
 
     from mvbb_ros.cli import synthetic
+    from mvbb_ros.evaluation import camera
     import numpy as np
 
     scene = synthetic.place_objects(['mug'], [synthetic.pose_matrix()])
     mesh = scene.objects[0].mesh
     center = np.asarray(mesh.get_axis_aligned_bounding_box().get_center())
     radius = float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - center, axis=1)))
-    half_fov = math.atan((synthetic.DEFAULT_HEIGHT / 2.0) / synthetic.DEFAULT_FOCAL)
+    half_fov = math.atan((camera.DEFAULT_HEIGHT / 2.0) / camera.DEFAULT_FOCAL)
     distance = radius / (fill * math.tan(half_fov))
-    pose = synthetic.orbit_pose(center, distance, -60.0, 35.0)
-    points, labels = synthetic.render_depth_cloud(scene, pose, seed=seed)
+    pose = camera.orbit_pose(center, distance, -60.0, 35.0)
+    points, labels = camera.render_depth_cloud(scene, pose, seed=seed)
     points[labels != 0] = np.nan
     return points
 

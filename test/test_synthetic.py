@@ -1,24 +1,31 @@
-"""Synthetic sample data: meshes, ray-cast depth views, noise, scenes and organized frames."""
+"""
+Synthetic sample data: meshes, ray-cast depth views, noise, scenes and organized frames.
+
+The depth camera itself (noise, poses, ray casting) is :mod:`mvbb_ros.evaluation.camera`; the
+scenes it looks at here are :mod:`mvbb_ros.cli.synthetic`'s.
+"""
 
 from __future__ import annotations
 
 import math
 import time
 
-from mvbb_ros.cli import synthetic
 from mvbb_ros.cli.synthetic import (
-    BACKGROUND,
-    DepthNoise,
-    look_at,
     make_object_mesh,
     make_scene,
-    orbit_pose,
     organized_frame,
     place_objects,
     pose_matrix,
-    render_depth_cloud,
     scene_views,
     segmented_object_cloud,
+)
+from mvbb_ros.evaluation import camera
+from mvbb_ros.evaluation.camera import (
+    BACKGROUND,
+    DepthNoise,
+    look_at,
+    orbit_pose,
+    render_depth_cloud,
 )
 import numpy as np
 import open3d as o3d
@@ -27,7 +34,7 @@ from scipy.spatial import cKDTree
 
 # Small images keep the tests quick; the field of view is that of a 640 x 480, f = 525 camera.
 W, H = 160, 120
-F = synthetic.DEFAULT_FOCAL * W / synthetic.DEFAULT_WIDTH
+F = camera.DEFAULT_FOCAL * W / camera.DEFAULT_WIDTH
 SMALL = {'width': W, 'height': H, 'fx': F, 'fy': F}
 
 
@@ -155,7 +162,7 @@ def test_rays_match_open3d_pinhole_model():
 def test_mug_points_lie_on_the_mug_surface_within_the_noise():
     scene, center = single_object('mug')
     pose = orbit_pose(center, 0.6, -60.0, 35.0)
-    noise = synthetic.DEFAULT_NOISE
+    noise = camera.DEFAULT_NOISE
     points, labels = render_depth_cloud(scene, pose, noise=noise, seed=3, **SMALL)
     mug = points[labels == 0]
     assert len(mug) > 300

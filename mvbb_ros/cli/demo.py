@@ -36,7 +36,8 @@ from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.arrays import Float32Array
 from mvbb_ros.cli.render import render_boxes
-from mvbb_ros.cli.synthetic import BACKGROUND, make_scene, scene_views
+from mvbb_ros.cli.synthetic import make_scene, scene_views
+from mvbb_ros.evaluation.camera import BACKGROUND
 from mvbb_ros.pipeline.decode import read_xyz
 from mvbb_ros.pipeline.settings import parse_assignments, PipelineSettings, settings_from_mapping
 

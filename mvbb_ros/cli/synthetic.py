@@ -1,9 +1,10 @@
 """
 Sample data of our own: household objects on a table, seen by a simulated depth camera.
 
-Meshes are built here with Open3D (no external model files), placed on a table and ray-cast from a
-pinhole depth camera (``open3d.t.geometry.RaycastingScene``), so the clouds are single partial
-views with realistic sensor noise, like a segmented RGB-D object cloud.
+Meshes are built here with Open3D (no external model files), placed on a table and ray-cast by
+the virtual depth camera of :mod:`mvbb_ros.evaluation.camera` (noise models, poses, intrinsics
+and ray casting live there), so the clouds are single partial views with realistic sensor noise,
+like a segmented RGB-D object cloud.
 
 Conventions:
 
@@ -26,73 +27,26 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 import math
-from typing import TypeAlias
 
+from mvbb_ros.arrays import Float32Array, FloatArray, IntArray
+from mvbb_ros.evaluation.camera import (
+    BACKGROUND,
+    camera_intrinsics,
+    DEFAULT_FOCAL,
+    DEFAULT_HEIGHT,
+    DEFAULT_NOISE,
+    DEFAULT_WIDTH,
+    DepthCamera,
+    DepthNoise,
+    orbit_pose,
+    render_depth_cloud,
+)
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 import open3d as o3d
 
-FloatArray = NDArray[np.float64]
-Float32Array = NDArray[np.float32]
-IntArray = NDArray[np.int32]
-
-#: Label of pixels that saw no object: the table, nothing at all, or a dropped measurement.
-BACKGROUND = -1
-
 #: Object kinds :func:`make_object_mesh` builds.
 OBJECT_KINDS: tuple[str, ...] = ('mug', 'can', 'box', 'bottle')
-
-#: Default image size and intrinsics: a VGA RGB-D camera (Kinect / Xtion class), pixels.
-DEFAULT_WIDTH = 640
-DEFAULT_HEIGHT = 480
-DEFAULT_FOCAL = 525.0
-
-
-# Sensor noise ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class DepthNoise:
-    """
-    Noise model of a structured-light or stereo depth camera.
-
-    Applied per valid pixel, in this order: grazing hits are dropped, random dropout, Gaussian
-    depth noise along the pixel's ray, then optional disparity quantisation.
-
-    :ivar sigma_const: constant part of the depth standard deviation, metres.
-    :ivar sigma_quadratic: quadratic part, 1/metres: sigma(z) = sigma_const + sigma_quadratic *
-        z^2 (about 1.3 mm at 0.8 m with the defaults, as for a Kinect-class sensor).
-    :ivar disparity_step: quantisation step of the inverse depth 1/z, 1/metres; 0 turns it off.
-        The depth step is then about disparity_step * z^2 (0.0029: Kinect v1's 2.9 mm at 1 m).
-    :ivar max_incidence_deg: hits whose ray meets the surface more obliquely than this angle
-        from the surface normal, degrees, return nothing, as on a real sensor.
-    :ivar dropout: probability that any valid pixel is randomly lost, in [0, 1).
-    """
-
-    sigma_const: float = 0.0005
-    sigma_quadratic: float = 0.0012
-    disparity_step: float = 0.0
-    max_incidence_deg: float = 80.0
-    dropout: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.sigma_const < 0.0 or self.sigma_quadratic < 0.0 or self.disparity_step < 0.0:
-            raise ValueError(f'DepthNoise terms must be >= 0, got {self}')
-        if not 0.0 < self.max_incidence_deg <= 90.0:
-            raise ValueError(f'max_incidence_deg must be in (0, 90], got {self.max_incidence_deg}')
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f'dropout must be in [0, 1), got {self.dropout}')
-
-    def sigma(self, depth: ArrayLike) -> FloatArray:
-        """Return the depth standard deviation (metres) at the given depths (metres)."""
-        z = np.asarray(depth, dtype=np.float64)
-        return self.sigma_const + self.sigma_quadratic * z * z
-
-
-#: Default noise: Gaussian depth noise growing with z^2, grazing hits dropped, no quantisation.
-DEFAULT_NOISE = DepthNoise()
-#: A Kinect v1-like sensor: the default noise plus disparity quantisation and 1 % dropout.
-KINECT_NOISE = DepthNoise(disparity_step=0.0029, dropout=0.01)
 
 
 # Meshes ------------------------------------------------------------------------------------------
@@ -298,46 +252,6 @@ def pose_matrix(translation: ArrayLike = (0.0, 0.0, 0.0), yaw: float = 0.0) -> F
     return pose
 
 
-def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> FloatArray:
-    """
-    Return the camera pose T_world_camera of an optical frame at `eye` looking at `target` (m).
-
-    The optical z axis points at the target, x to the right of the image and y down, with the
-    world direction `up` appearing upwards in the image.
-
-    :raises ValueError: when eye and target coincide or the view direction is parallel to `up`.
-    """
-    eye_w = np.asarray(eye, dtype=np.float64)
-    forward = np.asarray(target, dtype=np.float64) - eye_w
-    if np.linalg.norm(forward) < 1e-12:
-        raise ValueError('look_at: eye and target coincide')
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(up, dtype=np.float64))
-    if np.linalg.norm(right) < 1e-9:
-        raise ValueError('look_at: view direction is parallel to the up vector')
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([right, down, forward])
-    pose[:3, 3] = eye_w
-    return pose
-
-
-def orbit_pose(
-    target: ArrayLike, distance: float, azimuth_deg: float, elevation_deg: float
-) -> FloatArray:
-    """
-    Return a camera pose on a sphere around `target` (metres), looking at it.
-
-    Azimuth is measured in the world x-y plane from +x towards +y, elevation up from that plane
-    (both degrees). Azimuth 0 looks at the object's +x side (a mug's handle).
-    """
-    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    center = np.asarray(target, dtype=np.float64)
-    return look_at(center + distance * direction, center)
-
-
 # Scenes ------------------------------------------------------------------------------------------
 
 
@@ -384,6 +298,13 @@ class Scene:
     def poses(self) -> list[FloatArray]:
         """Object-to-world transforms (4, 4), in label order."""
         return [obj.pose for obj in self.objects]
+
+    def labelled_meshes(self) -> list[tuple[int, o3d.geometry.TriangleMesh]]:
+        """Return (label, mesh) pairs for the camera: objects by index, the table as background."""
+        labelled = list(enumerate(self.meshes))
+        if self.table is not None:
+            labelled.append((BACKGROUND, self.table))
+        return labelled
 
     def label_of(self, name: str) -> int:
         """Return the label (index) of the object called `name`."""
@@ -458,169 +379,7 @@ def make_scene(
     return place_objects(kinds, poses, resolution=resolution)
 
 
-# Ray casting -------------------------------------------------------------------------------------
-
-
-MeshesOrScene: TypeAlias = Scene | o3d.geometry.TriangleMesh | Sequence[o3d.geometry.TriangleMesh]
-
-
-class _Caster:
-    """A RaycastingScene over labelled meshes, reusable for many views."""
-
-    def __init__(self, meshes_or_scene: MeshesOrScene) -> None:
-        if isinstance(meshes_or_scene, Scene):
-            labelled = list(enumerate(meshes_or_scene.meshes))
-            if meshes_or_scene.table is not None:
-                labelled.append((BACKGROUND, meshes_or_scene.table))
-        elif isinstance(meshes_or_scene, o3d.geometry.TriangleMesh):
-            labelled = [(0, meshes_or_scene)]
-        else:
-            labelled = list(enumerate(meshes_or_scene))
-        self.scene = o3d.t.geometry.RaycastingScene()
-        labels = {}
-        for label, mesh in labelled:
-            if not isinstance(mesh, o3d.geometry.TriangleMesh):
-                raise TypeError(f'expected open3d TriangleMesh, got {type(mesh).__name__}')
-            geometry_id = self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-            labels[geometry_id] = label
-        # Lookup table from geometry id to label; the last slot is for "no hit".
-        self._lookup = np.full(max(labels, default=-1) + 2, BACKGROUND, dtype=np.int32)
-        for geometry_id, label in labels.items():
-            self._lookup[geometry_id] = label
-
-    def render(
-        self,
-        camera_pose: ArrayLike,
-        intrinsics: tuple[float, float, float, float],
-        size: tuple[int, int],
-        noise: DepthNoise | None,
-        rng: np.random.Generator,
-    ) -> tuple[Float32Array, IntArray]:
-        pose = np.asarray(camera_pose, dtype=np.float64)
-        if pose.shape != (4, 4):
-            raise ValueError(f'camera_pose must be a 4x4 matrix, got shape {pose.shape}')
-        fx, fy, cx, cy = intrinsics
-        width, height = size
-        # Rays with unit z in the camera frame, so the hit distance t is the depth z.
-        u = (np.arange(width, dtype=np.float64) - cx) / fx
-        v = (np.arange(height, dtype=np.float64) - cy) / fy
-        rays_cam = np.empty((height, width, 3))
-        rays_cam[..., 0] = u[None, :]
-        rays_cam[..., 1] = v[:, None]
-        rays_cam[..., 2] = 1.0
-        rays = np.empty((height, width, 6), dtype=np.float32)
-        rays[..., :3] = pose[:3, 3]
-        rays[..., 3:] = rays_cam @ pose[:3, :3].T
-        hits = self.scene.cast_rays(o3d.core.Tensor(rays))
-        depth = hits['t_hit'].numpy().astype(np.float64)
-        ids = hits['geometry_ids'].numpy().astype(np.int64)
-        valid = np.isfinite(depth)
-        labels = self._lookup[np.where(valid, ids, len(self._lookup) - 1)]
-        if noise is not None:
-            valid &= self._keep(
-                noise, hits['primitive_normals'].numpy(), rays[..., 3:], valid, rng
-            )
-            depth = self._noisy_depth(noise, depth, valid, rng)
-            valid &= np.isfinite(depth) & (depth > 0.0)
-        points = np.full((height, width, 3), np.nan, dtype=np.float32)
-        points[valid] = rays_cam[valid] * depth[valid, None]
-        labels[~valid] = BACKGROUND
-        return points, labels
-
-    @staticmethod
-    def _keep(
-        noise: DepthNoise,
-        normals: Float32Array,
-        directions: Float32Array,
-        valid: NDArray[np.bool_],
-        rng: np.random.Generator,
-    ) -> NDArray[np.bool_]:
-        """Tell which valid pixels survive the incidence-angle cut-off and random dropout."""
-        keep = np.zeros(valid.shape, dtype=bool)
-        n, d = normals[valid].astype(np.float64), directions[valid].astype(np.float64)
-        cos_incidence = np.abs(np.sum(n * d, axis=1)) / np.linalg.norm(d, axis=1)
-        ok = cos_incidence >= math.cos(math.radians(noise.max_incidence_deg)) - 1e-12
-        if noise.dropout > 0.0:
-            ok &= rng.random(len(ok)) >= noise.dropout
-        keep[valid] = ok
-        return keep
-
-    @staticmethod
-    def _noisy_depth(
-        noise: DepthNoise, depth: FloatArray, valid: NDArray[np.bool_], rng: np.random.Generator
-    ) -> FloatArray:
-        out = depth.copy()
-        z = depth[valid]
-        z = z + rng.standard_normal(len(z)) * noise.sigma(z)
-        if noise.disparity_step > 0.0:
-            step = noise.disparity_step
-            with np.errstate(divide='ignore'):
-                z = 1.0 / (np.round(1.0 / (z * step)) * step)
-        out[valid] = z
-        return out
-
-
-def _intrinsics(
-    width: int, height: int, fx: float, fy: float, cx: float | None, cy: float | None
-) -> tuple[float, float, float, float]:
-    if width < 1 or height < 1:
-        raise ValueError(f'image size must be positive, got {width}x{height}')
-    if fx <= 0.0 or fy <= 0.0:
-        raise ValueError(f'focal lengths must be positive, got fx={fx}, fy={fy}')
-    return (
-        float(fx),
-        float(fy),
-        (width - 1) / 2.0 if cx is None else float(cx),
-        (height - 1) / 2.0 if cy is None else float(cy),
-    )
-
-
-def render_depth_cloud(
-    meshes_or_scene: MeshesOrScene,
-    camera_pose: ArrayLike,
-    *,
-    width: int = DEFAULT_WIDTH,
-    height: int = DEFAULT_HEIGHT,
-    fx: float = DEFAULT_FOCAL,
-    fy: float = DEFAULT_FOCAL,
-    cx: float | None = None,
-    cy: float | None = None,
-    noise: DepthNoise | None = DEFAULT_NOISE,
-    seed: int = 0,
-    organized: bool = True,
-) -> tuple[Float32Array, IntArray]:
-    """
-    Ray-cast a depth camera image of meshes into a point cloud in the camera optical frame.
-
-    Pixel (u, v) looks along ((u - cx) / fx, (v - cy) / fy, 1) in the camera frame (pixel
-    centres at integer coordinates, as in OpenCV and ROS CameraInfo).
-
-    :param meshes_or_scene: a :class:`Scene` (objects labelled by index, the table is
-        :data:`BACKGROUND`), one mesh (label 0) or a sequence of meshes (labelled by index), all
-        in the world frame (metres).
-    :param camera_pose: (4, 4) T_world_camera of the optical frame (see :func:`look_at`).
-    :param width: image width, pixels.
-    :param height: image height, pixels.
-    :param fx: horizontal focal length, pixels.
-    :param fy: vertical focal length, pixels.
-    :param cx: principal point column, pixels; None for the image centre (width - 1) / 2.
-    :param cy: principal point row, pixels; None for the image centre (height - 1) / 2.
-    :param noise: the sensor model; None gives exact hits (no noise, no dropped pixels).
-    :param seed: seed of the noise.
-    :param organized: True for (H, W, 3) points and (H, W) labels; False for the valid points
-        only, (N, 3) and (N,) in row-major pixel order.
-    :return: ``(points, labels)``: float32 points in metres in the camera optical frame (NaN
-        where a pixel has no measurement) and int32 labels (:data:`BACKGROUND` for the table and
-        for pixels without a measurement).
-    """
-    intrinsics = _intrinsics(width, height, fx, fy, cx, cy)
-    points, labels = _Caster(meshes_or_scene).render(
-        camera_pose, intrinsics, (width, height), noise, np.random.default_rng(seed)
-    )
-    if organized:
-        return points, labels
-    valid = np.isfinite(points[..., 2])
-    return points[valid], labels[valid]
+# Views -------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -668,8 +427,8 @@ def scene_views(
     """
     if n_frames < 1:
         raise ValueError(f'n_frames must be >= 1, got {n_frames}')
-    intrinsics = _intrinsics(width, height, fx, fy, None, None)
-    caster = _Caster(scene)
+    intrinsics = camera_intrinsics(width, height, fx, fy, None, None)
+    caster = DepthCamera(scene)
     azimuths = np.linspace(azimuth_start_deg, azimuth_end_deg, n_frames)
     for index, azimuth in enumerate(azimuths):
         pose = orbit_pose(target, distance, float(azimuth), elevation_deg)
@@ -746,12 +505,12 @@ def organized_frame(
     radius = float(np.max(np.linalg.norm(vertices - center, axis=1)))
     half_fov = math.atan((DEFAULT_HEIGHT / 2.0) / DEFAULT_FOCAL)
     pose = orbit_pose(center, radius / math.sin(half_fov), azimuth_deg, elevation_deg)
-    caster = _Caster(scene)
+    caster = DepthCamera(scene)
 
     def render(width: int, noise_model: DepthNoise | None) -> tuple[Float32Array, IntArray]:
         height = round(width * 3 / 4)
         focal = DEFAULT_FOCAL * width / DEFAULT_WIDTH
-        intrinsics = _intrinsics(width, height, focal, focal, None, None)
+        intrinsics = camera_intrinsics(width, height, focal, focal, None, None)
         rng = np.random.default_rng(seed)
         return caster.render(pose, intrinsics, (width, height), noise_model, rng)
 

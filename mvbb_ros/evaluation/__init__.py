@@ -10,4 +10,7 @@ each other: :mod:`~mvbb_ros.evaluation.mesh` (the object), :mod:`~mvbb_ros.evalu
 (the comparison) and :mod:`~mvbb_ros.evaluation.report` (tables and plots). The protocol is
 written out in ``docs/evaluation_protocol.md``; the results are in ``docs/grasp_quality.md``.
 Nothing here is taken from GraspIt! or other grasp libraries.
+
+:mod:`~mvbb_ros.evaluation.camera` is the virtual depth camera (pinhole ray casting with sensor
+noise) that the demo scenes and the single-view benchmark render with.
 """
