@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mvbb_ros.arrays import FloatArray
+from mvbb_ros.arrays import FloatArray, IndexArray
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 import open3d as o3d
@@ -203,6 +203,42 @@ class GraspTarget:
                 center_of_mass=center_of_mass,
             )
         raise TypeError(f'unsupported mesh type {type(mesh).__name__}')
+
+    def cast(self, origins: ArrayLike, directions: ArrayLike) -> tuple[FloatArray, IndexArray]:
+        """
+        Cast rays at the mesh, any leading shape.
+
+        :param origins: (..., 3) ray origins.
+        :param directions: (..., 3) ray directions (broadcast against `origins`); the hit
+            distance is in units of their length.
+        :return: ``(t_hit, primitive_ids)`` of shape (...): the hit distance (inf for a miss)
+            and the triangle hit (an invalid id for a miss).
+        """
+        start = np.asarray(origins, dtype=np.float64)
+        direction = np.broadcast_to(np.asarray(directions, dtype=np.float64), start.shape)
+        shape = start.shape[:-1]
+        rays = np.concatenate([start, direction], axis=-1).reshape(-1, 6).astype(np.float32)
+        if len(rays) == 0:
+            return np.zeros(shape), np.zeros(shape, dtype=np.intp)
+        hits = self.scene.cast_rays(o3d.core.Tensor(rays))
+        return (
+            hits['t_hit'].numpy().astype(np.float64).reshape(shape),
+            hits['primitive_ids'].numpy().astype(np.intp).reshape(shape),
+        )
+
+    def inward_normals(self, primitive_ids: ArrayLike, directions: ArrayLike) -> FloatArray:
+        """
+        Return the normals of the triangles hit, turned along the rays that hit them (..., 3).
+
+        A finger pushing along its ray pushes along this normal, into the object, whatever the
+        triangle's winding.
+
+        :param primitive_ids: (...) triangles hit (valid ids only).
+        :param directions: (..., 3) the rays' directions.
+        """
+        normals = self.triangle_normals[np.asarray(primitive_ids, dtype=np.intp)]
+        along = np.einsum('...i,...i->...', normals, np.asarray(directions, dtype=np.float64))
+        return np.where((along >= 0.0)[..., None], normals, -normals)
 
     def __repr__(self) -> str:
         return (

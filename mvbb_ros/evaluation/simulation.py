@@ -22,12 +22,12 @@ from mvbb_ros.evaluation.wrench import (
     contact_wrenches,
     DEFAULT_CONE_EDGES,
     DEFAULT_FRICTION,
+    line_in_friction_cones,
     unit_rows,
     wrench_space_quality,
 )
 import numpy as np
 from numpy.typing import NDArray
-import open3d as o3d
 
 #: Outcome of a simulated grasp, :attr:`GraspEvaluation.status` indexes this tuple.
 STATUS_NAMES: tuple[str, ...] = ('grasped', 'missed', 'collision', 'no_contact')
@@ -123,38 +123,43 @@ def _grasp_arrays(grasps: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
     return arrays[0], arrays[1], arrays[2]
 
 
-def _cast(scene: Any, origins: FloatArray, directions: FloatArray) -> dict[str, np.ndarray]:
-    rays = np.concatenate([origins, directions], axis=-1).reshape(-1, 6).astype(np.float32)
-    if len(rays) == 0:
-        return {'t_hit': np.zeros(0), 'primitive_ids': np.zeros(0, dtype=np.int64)}
-    hits = scene.cast_rays(o3d.core.Tensor(rays))
-    shape = origins.shape[:-1]
-    return {
-        't_hit': hits['t_hit'].numpy().astype(np.float64).reshape(shape),
-        'primitive_ids': hits['primitive_ids'].numpy().astype(np.int64).reshape(shape),
-    }
-
-
 def _may_be_force_closure(
     contacts: FloatArray, normals: FloatArray, friction: float, torsion: float
 ) -> BoolArray:
     """
     Return, per two-contact grasp, False when it is certainly not force-closure.
 
-    Nguyen's test: two soft-finger contacts are force-closure only when the segment between
-    them lies strictly inside both (circular) friction cones; the linearised wrench sets are
-    inside the exact ones, so failing the test (or hard contacts, torsion 0) rules force
-    closure out. Passing it does not prove force closure; the hull decides.
+    Nguyen's test (:func:`~mvbb_ros.evaluation.wrench.line_in_friction_cones`): two soft-finger
+    contacts are force-closure only when the segment between them lies strictly inside both
+    (circular) friction cones; the linearised wrench sets are inside the exact ones, so failing
+    the test (or hard contacts, torsion 0) rules force closure out. Passing it does not prove
+    force closure; the hull decides.
     """
     if torsion <= 0.0:
         return np.zeros(len(contacts), dtype=bool)
-    line = contacts[:, 1] - contacts[:, 0]
-    length = np.linalg.norm(line, axis=1)
-    unit = np.divide(line, length[:, None], out=np.zeros_like(line), where=length[:, None] > 0)
-    limit = np.cos(np.arctan(friction)) - 1e-9
-    first = np.einsum('ij,ij->i', normals[:, 0], unit)
-    second = -np.einsum('ij,ij->i', normals[:, 1], unit)
-    return (length > 0.0) & (first > limit) & (second > limit)
+    return line_in_friction_cones(contacts, normals, friction)
+
+
+def grasp_axes(grasps: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """
+    Return the hand frames of grasps: positions, unit approaches, closings and sides (G, 3) each.
+
+    The closing direction is made orthogonal to the approach; ``side = approach x closing``.
+
+    :param grasps: grasp-like objects (``.position``, ``.approach``, ``.closing``) or a
+        ``(positions, approaches, closings)`` triple of (G, 3) arrays.
+    :raises ValueError: when a grasp has no approach or a closing direction along it.
+    """
+    positions, approaches, closings = _grasp_arrays(grasps)
+    approach = unit_rows(approaches)
+    closing = closings - np.einsum('ij,ij->i', closings, approach)[:, None] * approach
+    closing = unit_rows(closing)
+    if len(positions) and (
+        np.any(np.linalg.norm(approach, axis=1) == 0.0)
+        or np.any(np.linalg.norm(closing, axis=1) == 0.0)
+    ):
+        raise ValueError('every grasp needs an approach and a closing direction not along it')
+    return positions, approach, closing, np.cross(approach, closing)
 
 
 def evaluate_grasps(
@@ -193,17 +198,8 @@ def evaluate_grasps(
     if not radius >= 0.0:
         raise ValueError(f'contact_radius must be >= 0, got {contact_radius}')
     torsion = 2.0 / 3.0 * friction * radius
-    positions, approaches, closings = _grasp_arrays(grasps)
+    positions, approach, closing, side = grasp_axes(grasps)
     count = len(positions)
-    approach = unit_rows(approaches)
-    closing = closings - np.einsum('ij,ij->i', closings, approach)[:, None] * approach
-    closing = unit_rows(closing)
-    if count and (
-        np.any(np.linalg.norm(approach, axis=1) == 0.0)
-        or np.any(np.linalg.norm(closing, axis=1) == 0.0)
-    ):
-        raise ValueError('every grasp needs an approach and a closing direction not along it')
-    side = np.cross(approach, closing)
     half = hand.max_width / 2.0
 
     # 1-2. Approach: palm grid and fingertips, all along the approach direction.
@@ -226,7 +222,7 @@ def evaluate_grasps(
     ).reshape(count, -1, 3)
     origins = np.concatenate([palm_origins, tip_origins], axis=1)
     directions = np.broadcast_to(approach[:, None, :], origins.shape)
-    t_hit = _cast(target.scene, origins, directions)['t_hit']
+    t_hit, _ = target.cast(origins, directions)
     n_palm = palm_origins.shape[1]
     palm_hit = t_hit[:, :n_palm].min(axis=1) if count else np.zeros(0)
     tip_hit = t_hit[:, n_palm:].min(axis=1) if count else np.zeros(0)
@@ -246,18 +242,13 @@ def evaluate_grasps(
         pads = positions[live] + (travel[live] - hand.finger_depth / 2.0)[:, None] * approach[live]
         close_dirs = -finger_sign[None, :, None] * closing[live][:, None, :]  # (L, 2, 3)
         close_origins = pads[:, None, :] - half * close_dirs
-        hits = _cast(target.scene, close_origins, close_dirs)
-        distance = hits['t_hit']
+        distance, ids = target.cast(close_origins, close_dirs)
         touched = np.all(np.isfinite(distance) & (distance <= hand.max_width), axis=1)
         status[live[~touched]] = NO_CONTACT
         good = live[touched]
-        ids = hits['primitive_ids'][touched]
         points = close_origins[touched] + distance[touched][..., None] * close_dirs[touched]
-        tri_normals = target.triangle_normals[ids]  # (L, 2, 3)
-        along = np.einsum('lki,lki->lk', tri_normals, close_dirs[touched])
-        inward = np.where((along >= 0.0)[..., None], tri_normals, -tri_normals)
         contacts[good] = points
-        normals[good] = inward
+        normals[good] = target.inward_normals(ids[touched], close_dirs[touched])
 
     # Quality.
     epsilon = np.zeros(count)

@@ -10,7 +10,7 @@ distance from the origin to its nearest facet when the origin is inside, V its 6
 
 from __future__ import annotations
 
-from mvbb_ros.arrays import FloatArray
+from mvbb_ros.arrays import BoolArray, FloatArray
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import ConvexHull, QhullError
@@ -29,6 +29,34 @@ def unit_rows(vectors: FloatArray) -> FloatArray:
     """Return the rows of `vectors` (..., 3) scaled to unit length (zero rows stay zero)."""
     norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
     return np.divide(vectors, norms, out=np.zeros_like(vectors), where=norms > 0.0)
+
+
+def line_in_friction_cones(
+    contacts: ArrayLike, normals: ArrayLike, friction: float = DEFAULT_FRICTION
+) -> BoolArray:
+    """
+    Tell, per two-contact grasp, whether the line between the contacts is inside both cones.
+
+    Nguyen's antipodal test: the segment from contact 0 to contact 1 makes an angle below
+    ``atan(friction)`` with contact 0's inward normal, and the segment from 1 to 0 with contact
+    1's (strictly, up to 1e-9 of the cosine). Coincident contacts fail.
+
+    :param contacts: (..., 2, 3) the two contact points.
+    :param normals: (..., 2, 3) their unit inward normals (the directions the fingers push).
+    :param friction: Coulomb coefficient mu (>= 0).
+    :return: (...) booleans.
+    """
+    points = np.asarray(contacts, dtype=np.float64)
+    inward = np.asarray(normals, dtype=np.float64)
+    line = points[..., 1, :] - points[..., 0, :]
+    length = np.linalg.norm(line, axis=-1)
+    unit = np.divide(
+        line, length[..., None], out=np.zeros_like(line), where=length[..., None] > 0.0
+    )
+    limit = np.cos(np.arctan(friction)) - 1e-9
+    first = np.einsum('...i,...i->...', inward[..., 0, :], unit)
+    second = -np.einsum('...i,...i->...', inward[..., 1, :], unit)
+    return (length > 0.0) & (first > limit) & (second > limit)
 
 
 def _tangents(normals: FloatArray, references: FloatArray) -> tuple[FloatArray, FloatArray]:
