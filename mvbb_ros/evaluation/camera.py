@@ -195,6 +195,7 @@ class DepthCamera:
         size: tuple[int, int],
         noise: DepthNoise | None,
         rng: np.random.Generator,
+        window: tuple[int, int, int, int] | None = None,
     ) -> tuple[Float32Array, IntArray]:
         """
         Render one organized depth image as points in the camera optical frame.
@@ -204,18 +205,25 @@ class DepthCamera:
         :param size: (width, height) of the image, pixels.
         :param noise: the sensor model; None gives exact hits.
         :param rng: the random generator of the noise (used only with `noise`).
+        :param window: only the pixels of columns ``[c0, c1)`` and rows ``[r0, r1)`` given as
+            ``(c0, r0, c1, r1)`` (clipped to the image), for speed when the object of interest
+            covers a small part of the image; None for the whole image. The noise drawn then
+            differs from the whole image's.
         :return: ``(points, labels)``: (H, W, 3) float32 points (NaN without a measurement) and
-            (H, W) int32 labels.
+            (H, W) int32 labels, of the window when one is given.
         :raises ValueError: when `camera_pose` is not 4x4.
         """
         pose = np.asarray(camera_pose, dtype=np.float64)
         if pose.shape != (4, 4):
             raise ValueError(f'camera_pose must be a 4x4 matrix, got shape {pose.shape}')
         fx, fy, cx, cy = intrinsics
-        width, height = size
+        col0, row0, col1, row1 = (0, 0, *size) if window is None else window
+        col0, col1 = max(col0, 0), min(col1, size[0])
+        row0, row1 = max(row0, 0), min(row1, size[1])
+        width, height = max(col1 - col0, 0), max(row1 - row0, 0)
         # Rays with unit z in the camera frame, so the hit distance t is the depth z.
-        u = (np.arange(width, dtype=np.float64) - cx) / fx
-        v = (np.arange(height, dtype=np.float64) - cy) / fy
+        u = (np.arange(col0, col1, dtype=np.float64) - cx) / fx
+        v = (np.arange(row0, row1, dtype=np.float64) - cy) / fy
         rays_cam = np.empty((height, width, 3))
         rays_cam[..., 0] = u[None, :]
         rays_cam[..., 1] = v[:, None]
@@ -270,6 +278,40 @@ class DepthCamera:
                 z = 1.0 / (np.round(1.0 / (z * step)) * step)
         out[valid] = z
         return out
+
+
+def image_window(
+    points: ArrayLike,
+    camera_pose: ArrayLike,
+    intrinsics: Intrinsics,
+    size: tuple[int, int],
+    margin: int = 2,
+) -> tuple[int, int, int, int]:
+    """
+    Return the pixel window ``(c0, r0, c1, r1)`` that sees every given world point.
+
+    For :meth:`DepthCamera.render`: pass the corners of an object's bounding box to render only
+    the pixels that can see it. Points behind the camera give the whole image.
+
+    :param points: (N, 3) world points.
+    :param camera_pose: (4, 4) T_world_camera.
+    :param intrinsics: (fx, fy, cx, cy), pixels.
+    :param size: (width, height) of the image.
+    :param margin: pixels added on every side.
+    """
+    pose = np.asarray(camera_pose, dtype=np.float64)
+    local = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - pose[:3, 3]) @ pose[:3, :3]
+    if len(local) == 0 or np.any(local[:, 2] <= 1e-9):
+        return 0, 0, size[0], size[1]
+    fx, fy, cx, cy = intrinsics
+    cols = fx * local[:, 0] / local[:, 2] + cx
+    rows = fy * local[:, 1] / local[:, 2] + cy
+    return (
+        max(int(math.floor(cols.min())) - margin, 0),
+        max(int(math.floor(rows.min())) - margin, 0),
+        min(int(math.ceil(cols.max())) + margin + 1, size[0]),
+        min(int(math.ceil(rows.max())) + margin + 1, size[1]),
+    )
 
 
 def camera_intrinsics(
