@@ -19,7 +19,7 @@ from mvbb_ros.cli.synthetic import (
     scene_views,
     segmented_object_cloud,
 )
-from mvbb_ros.evaluation import camera
+from mvbb_ros.evaluation import camera, coverage
 from mvbb_ros.evaluation.camera import (
     BACKGROUND,
     DepthNoise,
@@ -51,17 +51,10 @@ def surface_distance(mesh, points_world):
 
 
 def sample_surface(mesh, count, seed=0):
-    """Points drawn uniformly by area on a triangle mesh."""
-    rng = np.random.default_rng(seed)
-    corners = np.asarray(mesh.vertices)[np.asarray(mesh.triangles)]
-    areas = np.linalg.norm(
-        np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
+    """Return points drawn uniformly by area on a triangle mesh."""
+    return coverage.sample_surface(
+        np.asarray(mesh.vertices), np.asarray(mesh.triangles), count, seed
     )
-    chosen = corners[rng.choice(len(corners), size=count, p=areas / areas.sum())]
-    u, v = rng.random((2, count, 1))
-    flip = u + v > 1.0
-    u, v = np.where(flip, 1.0 - u, u), np.where(flip, 1.0 - v, v)
-    return chosen[:, 0] + u * (chosen[:, 1] - chosen[:, 0]) + v * (chosen[:, 2] - chosen[:, 0])
 
 
 def single_object(kind='mug', yaw_deg=0.0):
