@@ -158,7 +158,7 @@ class TableObject:
 
     @property
     def mesh(self) -> o3d.geometry.TriangleMesh:
-        """The mesh as an Open3D triangle mesh (world frame)."""
+        """Return the world-frame mesh as an Open3D triangle mesh."""
         return o3d.geometry.TriangleMesh(
             o3d.utility.Vector3dVector(self.vertices),
             o3d.utility.Vector3iVector(self.triangles.astype(np.int32)),
@@ -166,14 +166,14 @@ class TableObject:
 
     @property
     def camera(self) -> DepthCamera:
-        """The depth camera's world: this object (label 0) on a table (background)."""
+        """Return the depth camera's world: this object (label 0) on a table (background)."""
         if self._camera is None:
             self._camera = DepthCamera([self.mesh, _table_mesh()])
         return self._camera
 
     @property
     def target(self) -> GraspTarget:
-        """The whole mesh prepared for grasp simulation (world frame)."""
+        """Return the whole mesh prepared for grasp simulation, in the world frame."""
         if self._target is None:
             self._target = GraspTarget(self.vertices, self.triangles)
         return self._target
@@ -250,7 +250,7 @@ class SingleView:
 
     @property
     def up(self) -> FloatArray:
-        """World up (+z) in the camera frame: what a robot sets as ``up_direction``."""
+        """Return the world's +z in the camera frame: what a robot sets as ``up_direction``."""
         return self.camera_pose[2, :3].copy()
 
     @property
