@@ -293,24 +293,37 @@ VIEW_TABLE_HEADER = (
 )
 
 
-def view_table(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]) -> str:
-    """Means over views per configuration and threshold."""
-    out = []
+def _by_threshold(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]):
+    """Yield (label, threshold, rows of that configuration and threshold)."""
     for label in labels:
         for threshold in sorted({r['threshold'] for r in rows if r['config'] == label}):
-            sel = [r for r in rows if r['config'] == label and r['threshold'] == threshold]
-            out.append(
-                (
-                    label,
-                    f'{threshold:.2f}',
-                    str(len(sel)),
-                    _pct(_mean(r['coverage'] for r in sel)),
-                    f'{_mean(r["volume_ratio"] for r in sel):.2f}',
-                    _pct(_share(sum(r['thin'] for r in sel), sum(r['boxes'] for r in sel))),
-                    f'{_mean(r["boxes"] for r in sel):.1f}',
-                    f'{statistics.median(r["ms"] for r in sel):.0f}',
-                )
+            yield (
+                label,
+                threshold,
+                [r for r in rows if r['config'] == label and r['threshold'] == threshold],
             )
+
+
+def _thin_share(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Return the share of thin boxes, pooled over the rows' boxes."""
+    return _pct(_share(sum(r['thin'] for r in rows), sum(r['boxes'] for r in rows)))
+
+
+def view_table(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]) -> str:
+    """Means over views per configuration and threshold."""
+    out = [
+        (
+            label,
+            f'{threshold:.2f}',
+            str(len(sel)),
+            _pct(_mean(r['coverage'] for r in sel)),
+            f'{_mean(r["volume_ratio"] for r in sel):.2f}',
+            _thin_share(sel),
+            f'{_mean(r["boxes"] for r in sel):.1f}',
+            f'{statistics.median(r["ms"] for r in sel):.0f}',
+        )
+        for label, threshold, sel in _by_threshold(rows, labels)
+    ]
     return _table(VIEW_TABLE_HEADER, out)
 
 
@@ -334,7 +347,7 @@ def mesh_table(
             cells += [
                 _pct(_mean(r['coverage'] for r in sel)),
                 f'{_mean(r["volume_ratio"] for r in sel):.2f}',
-                _pct(_share(sum(r['thin'] for r in sel), sum(r['boxes'] for r in sel))),
+                _thin_share(sel),
                 f'{_mean(r["boxes"] for r in sel):.1f}',
             ]
         out.append(cells)
@@ -346,20 +359,17 @@ SCAN_TABLE_HEADER = ('config', 't', 'scans', 'boxes / scan', 'boxes < 1 cm', 'ms
 
 def scan_table(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]) -> str:
     """Real scans per configuration and threshold: boxes per scan and the thin share."""
-    out = []
-    for label in labels:
-        for threshold in sorted({r['threshold'] for r in rows if r['config'] == label}):
-            sel = [r for r in rows if r['config'] == label and r['threshold'] == threshold]
-            out.append(
-                (
-                    label,
-                    f'{threshold:.2f}',
-                    str(len(sel)),
-                    f'{_mean(r["boxes"] for r in sel):.1f}',
-                    _pct(_share(sum(r['thin'] for r in sel), sum(r['boxes'] for r in sel))),
-                    f'{statistics.median(r["ms"] for r in sel):.0f}',
-                )
-            )
+    out = [
+        (
+            label,
+            f'{threshold:.2f}',
+            str(len(sel)),
+            f'{_mean(r["boxes"] for r in sel):.1f}',
+            _thin_share(sel),
+            f'{statistics.median(r["ms"] for r in sel):.0f}',
+        )
+        for label, threshold, sel in _by_threshold(rows, labels)
+    ]
     return _table(SCAN_TABLE_HEADER, out)
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from conftest import require_shared_data
 from mvbb_ros.cli.synthetic import make_object_mesh
 from mvbb_ros.evaluation.camera import (
@@ -23,7 +25,6 @@ from mvbb_ros.evaluation.views import (
     TableModel,
     TableObject,
 )
-from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
 import numpy as np
 import open3d as o3d
@@ -126,16 +127,10 @@ def test_box_metrics_and_grasps_of_a_view_are_measured_in_the_world(can):
     assert view.box_metrics([]).coverage == 0.0
     # A top-down grasp across the can (66 mm) in the camera frame holds; a wide one does not.
     rotation = view.camera_pose[:3, :3]
-    top = can.center + [0.0, 0.0, 0.2]
-    grasp = Box(center=view.to_camera(top), rotation=np.eye(3), extents=[0, 0, 0])
-    across = type(
-        'G',
-        (),
-        {
-            'position': grasp.center,
-            'approach': rotation.T @ [0.0, 0.0, -1.0],
-            'closing': rotation.T @ [1.0, 0.0, 0.0],
-        },
+    across = SimpleNamespace(
+        position=view.to_camera(can.center + [0.0, 0.0, 0.2]),
+        approach=rotation.T @ [0.0, 0.0, -1.0],
+        closing=rotation.T @ [1.0, 0.0, 0.0],
     )
     assert view.judge_grasps([across], 0.08).holds[0]
     assert not view.judge_grasps([across], 0.05).holds[0]
