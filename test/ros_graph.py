@@ -3,14 +3,21 @@ Test helpers for end-to-end tests through a real rclpy graph.
 
 A :class:`Graph` holds one rclpy context with the node under test and a probe node that
 publishes clouds and records what comes back; `spin_until` spins both until a condition holds.
+A :class:`CloudSource` publishes clouds from another process (``cloud_source.py``), through the
+middleware's real transport.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
+import select
+import subprocess
+import sys
 import time
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from mvbb_ros.ros.node import DecomposerNode
 import numpy as np
@@ -57,6 +64,9 @@ class Graph:
         self.boxes: list[MarkerArray] = []
         self.trees: list[MarkerArray] = []
         self.grasps: list[PoseArray] = []
+        self.candidates: list[PointCloud2] = []
+        self.box_lists: list[PointCloud2] = []
+        self.diagnostics: list[DiagnosticArray] = []
         reliable = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
         )
@@ -68,6 +78,15 @@ class Graph:
         )
         self.probe.create_subscription(
             PoseArray, '/decomposer/grasps', self.grasps.append, reliable
+        )
+        self.probe.create_subscription(
+            PointCloud2, '/decomposer/grasp_candidates', self.candidates.append, reliable
+        )
+        self.probe.create_subscription(
+            PointCloud2, '/decomposer/box_list', self.box_lists.append, reliable
+        )
+        self.probe.create_subscription(
+            DiagnosticArray, '/diagnostics', self.diagnostics.append, reliable
         )
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
@@ -85,6 +104,17 @@ class Graph:
                 return True
             self.executor.spin_once(timeout_sec=0.05)
         return condition()
+
+    def answer(self, sec: int, nanosec: int = 0) -> PoseArray | None:
+        """Return the last PoseArray stamped (sec, nanosec), or None."""
+        for grasps in reversed(self.grasps):
+            if (grasps.header.stamp.sec, grasps.header.stamp.nanosec) == (sec, nanosec):
+                return grasps
+        return None
+
+    def wait_for_answer(self, sec: int, timeout_s: float) -> bool:
+        """Spin until a PoseArray stamped `sec` seconds arrives; return whether it did."""
+        return self.spin_until(lambda: self.answer(sec) is not None, timeout_s)
 
     def publish_until_answered(self, publisher: Any, cloud: PointCloud2) -> PoseArray:
         """Publish `cloud` until a PoseArray with its stamp arrives (discovery takes a moment)."""
@@ -113,3 +143,55 @@ class Graph:
         self.node.destroy_node()
         self.probe.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+class CloudSource:
+    """
+    A cloud publisher in another process (``test/cloud_source.py``), driven through its stdin.
+
+    :param reliability: ``reliable`` or ``best_effort``.
+    :param depth: the publisher's keep-last depth.
+    :param topic: the topic it publishes on.
+    """
+
+    def __init__(self, reliability: str, depth: int = 1, topic: str = 'cloud_in') -> None:
+        script = Path(__file__).resolve().parent / 'cloud_source.py'
+        self.process = subprocess.Popen(
+            [sys.executable, str(script), reliability, str(depth), topic],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self._read(60.0) == 'ready', 'the cloud source did not start'
+
+    def _read(self, timeout_s: float) -> str:
+        assert self.process.stdout is not None
+        ready, _, _ = select.select([self.process.stdout], [], [], timeout_s)
+        assert ready, f'no answer from the cloud source in {timeout_s} s'
+        return self.process.stdout.readline().strip()
+
+    def _send(self, line: str) -> str:
+        assert self.process.stdin is not None
+        self.process.stdin.write(line + '\n')
+        self.process.stdin.flush()
+        return self._read(60.0)
+
+    def publish(self, sec: int, points: int = 4000) -> None:
+        """Publish one L-shaped cloud of `points` points stamped `sec` seconds."""
+        assert self._send(f'publish {sec} {points}') == f'published {sec}'
+
+    def subscription_count(self) -> int:
+        """Return the subscriptions matched with the source's publisher."""
+        answer = self._send('count')
+        assert answer.startswith('count '), answer
+        return int(answer.split()[1])
+
+    def close(self) -> None:
+        """End the process (end of its input)."""
+        if self.process.stdin is not None:
+            self.process.stdin.close()
+        try:
+            self.process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()

@@ -20,7 +20,10 @@ from conftest import require_shared_data
 from geometry_msgs.msg import PoseArray
 from mvbb_ros.cli.main import main
 from mvbb_ros.cli.progress import ProgressBar
+from mvbb_ros.geometry.grasps import GraspStats
+from mvbb_ros.pipeline import explain
 from mvbb_ros.pipeline.decode import read_xyz
+from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping
 from mvbb_ros.ros.bag import BagError, BagWriter, CloudBag, ros_type_name
@@ -57,9 +60,16 @@ OUTPUT_GRASPS = '/decomposer/grasps'
 OUTPUT_TYPES_BY_TOPIC = {
     '/decomposer/boxes': MarkerArray,
     '/decomposer/tree': MarkerArray,
+    '/decomposer/box_list': PointCloud2,
     OUTPUT_GRASPS: PoseArray,
+    '/decomposer/grasp_candidates': PointCloud2,
 }
 OUTPUT_TOPICS = tuple(OUTPUT_TYPES_BY_TOPIC)
+
+
+def _header(message):
+    """Return an output's header: a MarkerArray's is its first marker's (the DELETEALL)."""
+    return message.markers[0].header if isinstance(message, MarkerArray) else message.header
 
 
 def _cloud(points: np.ndarray, sec: int, nanosec: int = 0, frame: str = 'cam') -> PointCloud2:
@@ -179,8 +189,7 @@ def test_process_keeps_counts_and_timestamps(tmp_path, input_storage, output_sto
                 assert bytes(message.data) == bytes(cloud.data)
                 header = message.header
             else:
-                message = deserialize_message(raw, OUTPUT_TYPES_BY_TOPIC[topic])
-                header = message.markers[0].header if topic != OUTPUT_GRASPS else message.header
+                header = _header(deserialize_message(raw, OUTPUT_TYPES_BY_TOPIC[topic]))
             assert header.stamp == cloud.header.stamp, 'output headers keep the input stamp'
             assert header.frame_id == 'cam'
 
@@ -191,7 +200,12 @@ def test_process_options_namespace_no_tree_and_compression(tmp_path, sqlite_bag)
     summary = process_bag(
         sqlite_bag, out, settings=settings, namespace='/tuning', storage='sqlite3', compress=True
     )
-    assert summary.topics == {'/tuning/boxes': 3, '/tuning/grasps': 3}
+    assert summary.topics == {
+        '/tuning/boxes': 3,
+        '/tuning/box_list': 3,
+        '/tuning/grasps': 3,
+        '/tuning/grasp_candidates': 3,
+    }
     assert 'compression_mode: message' in (out / 'metadata.yaml').read_text()
     assert {topic: len(messages) for topic, messages in _read(out).items()} == summary.topics
 
@@ -214,6 +228,42 @@ def test_process_cli_prints_table_and_totals(tmp_path, sqlite_bag, capsys):
     assert 'total: 3 clouds, 1200 points' in captured.out
     assert 'clouds/s' in captured.out
     assert captured.err == '', 'no progress bar when stderr is not a terminal'
+
+
+def test_process_says_which_filter_removed_the_grasps(tmp_path, sqlite_bag, capsys):
+    out = tmp_path / 'out'
+    arguments = ['bag', 'process', str(sqlite_bag), str(out), '-p', 'voxel_size:=0.0']
+    code = main([*arguments, '-p', 'gripper_max_width:=0.001', '--no-progress'])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    rows = [line for line in captured.out.splitlines() if line.split()[:1] in (['0'], ['1'])]
+    assert len(rows) == 2
+    for row in rows:
+        assert int(row.split()[5]) >= 1 and int(row.split()[6]) == 0, 'boxes, no grasps'
+        assert '0 grasps: gripper_max_width: every free face needs more than 0.001 m' in row
+        assert '-> width 0' in row
+    assert '3 of 3 clouds gave boxes but no grasps' in captured.out
+    assert 'gave cleared outputs' not in captured.out, 'the boxes are published'
+
+
+def test_empty_grasps_note_names_the_first_filter_that_leaves_none(monkeypatch):
+    settings = settings_from_mapping({**FAST, 'up_direction': [0.0, 0.0, 1.0]})
+    result = process_cloud(_test_clouds()[0], settings)
+    assert result.grasps and empty_grasps_note(result, settings) == '', 'grasps: no note'
+    rejected = process_cloud(_cloud(np.zeros((0, 3)), sec=1), settings)
+    assert empty_grasps_note(rejected, settings) == '', 'no boxes: the warning says why'
+    # The filters the L shape never empties, with their counts as the grasp stage gives them.
+    result.grasps = []
+    for counts, named in (
+        ((2, 12, 0, 0, 48, 0, 0, 0), 'occlusion: every face is covered'),
+        ((2, 12, 10, 0, 48, 40, 26, 0), 'support: every remaining approach comes from below'),
+    ):
+        monkeypatch.setattr(
+            explain, 'grasp_filter_counts', lambda *_, c=counts, **__: GraspStats(*c)
+        )
+        note = empty_grasps_note(result, settings)
+        assert note.startswith('2 boxes, 0 grasps: ' + named), note
+        assert 'up_direction [0.0, 0.0, 1.0]' in note or 'occlusion' in named
 
 
 def test_params_file_and_p_override(tmp_path, sqlite_bag, capsys):
@@ -302,12 +352,18 @@ def test_output_messages_follow_publish_tree_and_clear_on_failure():
     cloud = _cloud(l_shape_points(count=400), sec=1)
     settings = settings_from_mapping(FAST)
     result = process_cloud(cloud, settings)
-    assert list(output_messages(result, cloud.header, settings)) == ['boxes', 'tree', 'grasps']
+    every = ['boxes', 'tree', 'box_list', 'grasps', 'grasp_candidates']
+    assert list(output_messages(result, cloud.header, settings)) == every
     no_tree = settings_from_mapping({**FAST, 'publish_tree': False})
-    assert list(output_messages(result, cloud.header, no_tree)) == ['boxes', 'grasps']
+    assert list(output_messages(result, cloud.header, no_tree)) == [
+        suffix for suffix in every if suffix != 'tree'
+    ]
     cleared = output_messages(None, cloud.header, settings)
     assert [m.action for m in cleared['boxes'].markers] == [3]  # DELETEALL
     assert cleared['grasps'].poses == [] and cleared['grasps'].header == cloud.header
+    for suffix in ('box_list', 'grasp_candidates'):
+        assert cleared[suffix].width == 0 and cleared[suffix].header == cloud.header
+        assert len(cleared[suffix].fields) > 3, 'an empty cloud still names its fields'
 
 
 # Shared real bags ------------------------------------------------------------------------------
@@ -340,9 +396,7 @@ def test_shared_bags_process_with_counts_and_timestamps_kept(tmp_path, name, top
     for topic_name, messages in found.items():
         assert [stamp for stamp, _, _ in messages] == [stamp for stamp, _ in inputs]
         for (_, raw, _), (_, header) in zip(messages, inputs, strict=True):
-            message = deserialize_message(raw, OUTPUT_TYPES_BY_TOPIC[topic_name])
-            got = message.header if topic_name == OUTPUT_GRASPS else message.markers[0].header
-            assert got == header
+            assert _header(deserialize_message(raw, OUTPUT_TYPES_BY_TOPIC[topic_name])) == header
 
 
 def test_shared_ros1_and_ros2_embag_decode_identically():

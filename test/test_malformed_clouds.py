@@ -111,6 +111,12 @@ def _random_bytes() -> PointCloud2:
     return _raw_cloud(_xyz_fields(), rng.bytes(12 * 997 - 5), 997)
 
 
+def _random_float_bytes(count: int = 997) -> PointCloud2:
+    """Return a well-formed cloud of random bytes: float32 coordinates up to 3.4e38, NaNs."""
+    rng = np.random.default_rng(RNG_SEED)
+    return _raw_cloud(_xyz_fields(), rng.bytes(12 * count), count)
+
+
 def _big_endian() -> PointCloud2:
     points = _object()
     return _raw_cloud(
@@ -208,6 +214,8 @@ CORPUS: dict[str, Case] = {
     '100 m object': Case(lambda: create_cloud_xyz(_object() * 500.0), True),
     '2 million points': Case(lambda: create_cloud_xyz(_object(2_000_000)), True),
     'random bytes': Case(_random_bytes, False, 'malformed'),
+    'random bytes, well formed': Case(_random_float_bytes, False, 'absurd cloud'),
+    '2 km wide': Case(lambda: create_cloud_xyz(_object() * 1e4), False, 'more than 1000 m'),
 }
 
 
@@ -256,3 +264,22 @@ def test_node_processes_a_good_cloud_after_the_corpus(graph):
     grasps = graph.publish_until_answered(graph.publisher(), create_cloud_xyz(_object()))
     assert len(grasps.poses) > 0
     assert graph.node._stats['clouds_failed'] == 0, 'no cloud of the corpus crashed the pipeline'
+
+
+def test_absurd_clouds_give_one_warning_and_no_traceback(capfd):
+    graph = Graph()  # its own node: nothing logged before
+    try:
+        publisher = graph.publisher()
+        for sec in (1, 2, 3):
+            cloud = _random_float_bytes()
+            cloud.header.stamp = Time(sec=sec, nanosec=0)
+            grasps = graph.publish_until_answered(publisher, cloud)
+            assert len(grasps.poses) == 0
+        assert graph.node._stats['clouds_rejected'] >= 3
+        assert graph.node._stats['clouds_failed'] == 0
+        assert [m.action for m in graph.boxes[-1].markers] == [Marker.DELETEALL]
+        logged = capfd.readouterr().err
+        assert logged.count('absurd cloud') == 1, logged
+        assert 'span' in logged and 'Traceback' not in logged
+    finally:
+        graph.close()

@@ -10,16 +10,18 @@ import sys
 import time
 
 from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseArray
 from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
-from rclpy.qos import ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from ros_graph import Graph, l_shape_points
 from scipy.spatial.transform import Rotation
-from visualization_msgs.msg import Marker
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import Marker, MarkerArray
 
 pytestmark = pytest.mark.ros
 
@@ -143,18 +145,19 @@ def test_bad_clouds_give_cleared_outputs_and_the_node_keeps_running(graph):
     assert len(grasps.poses) > 0, 'a good cloud after bad ones is processed normally'
 
 
-def test_read_only_reliable_input_cannot_change_at_runtime(graph):
-    ok, reason = _set_parameter(graph, 'reliable_input', True)
-    assert not ok and 'read-only' in reason.lower()
-
-
-def test_reliable_input_parameter_makes_the_subscription_reliable():
-    graph = Graph(parameter_overrides=[Parameter('reliable_input', value=True)])
+def test_input_reliability_override_makes_the_subscription_reliable_with_a_deep_queue():
+    graph = Graph(
+        parameter_overrides=[
+            Parameter('input_reliability', value='reliable'),
+            Parameter('input_depth', value=50),
+        ]
+    )
     try:
         grasps = graph.publish_until_answered(graph.publisher(), _cloud(l_shape_points()))
         assert len(grasps.poses) > 0
         endpoint = graph.node.get_subscriptions_info_by_topic('/cloud_in')[0]
         assert endpoint.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        assert graph.node.cloud_input.qos.depth == 50
     finally:
         graph.close()
 
@@ -202,3 +205,49 @@ def test_bad_parameter_file_fails_loudly(tmp_path):
     )
     assert result.returncode != 0
     assert 'gain_threshold' in result.stderr + result.stdout
+
+
+def test_turning_publish_tree_off_clears_the_drawn_tree(graph):
+    graph.publish_until_answered(graph.publisher(), _cloud(l_shape_points()))
+    assert graph.spin_until(lambda: graph.trees and len(graph.trees[-1].markers) > 1)
+    seen = len(graph.trees)
+    ok, reason = _set_parameter(graph, 'publish_tree', False)
+    assert ok, reason
+    assert graph.spin_until(lambda: len(graph.trees) > seen)
+    final = graph.trees[-1]
+    assert [m.action for m in final.markers] == [Marker.DELETEALL], 'a final DELETEALL'
+    assert final.markers[0].header.frame_id == 'camera_optical_frame'
+    # Re-processing the last cloud publishes no tree any more.
+    assert graph.spin_until(lambda: graph.node._stats['clouds_reprocessed'] == 1)
+    graph.spin_until(lambda: False, timeout_s=1.0)
+    assert len(graph.trees) == seen + 1
+
+
+def test_late_subscribers_get_the_last_result():
+    """Outputs are transient local: RViz started after the node still sees the last result."""
+    graph = Graph()
+    try:
+        graph.publish_until_answered(graph.publisher(), _cloud(l_shape_points(), sec=77))
+        late: list = []
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        for topic, message_class in (
+            ('/decomposer/boxes', MarkerArray),
+            ('/decomposer/grasps', PoseArray),
+            ('/decomposer/grasp_candidates', PointCloud2),
+        ):
+            graph.probe.create_subscription(message_class, topic, late.append, qos)
+        assert graph.spin_until(lambda: len(late) >= 3, timeout_s=15.0)
+        stamps = {_stamp(message) for message in late}
+        assert stamps == {77}
+    finally:
+        graph.close()
+
+
+def _stamp(message) -> int:
+    header = message.markers[0].header if isinstance(message, MarkerArray) else message.header
+    return header.stamp.sec

@@ -2,19 +2,29 @@
 
 from __future__ import annotations
 
+import array
 import math
+from pathlib import Path
+import subprocess
+import sys
 
 from mvbb_ros.pipeline.settings import (
     parse_assignments,
     PipelineSettings,
+    read_params_file,
     settings_from_mapping,
     SPECS,
     validate_setting,
 )
 from mvbb_ros.ros.encode import create_cloud_xyz
 import mvbb_ros.ros.node
+from mvbb_ros.ros.node import DecomposerNode, UnknownParameterError
 import pytest
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+import rclpy
+from rclpy.context import Context
 from rclpy.parameter import Parameter
 from ros_graph import Graph, l_shape_points
 
@@ -130,3 +140,115 @@ def test_a_fault_inside_processing_is_logged_and_the_next_cloud_processed(monkey
         assert len(grasps.poses) > 0, 'the next cloud is processed normally'
     finally:
         graph.close()
+
+
+# Every parameter has a typed value; unknown names are refused (issue 18, items 2 and 7) -------
+
+
+def _call(graph: Graph, service_type, name: str, request):
+    client = graph.probe.create_client(service_type, f'/decomposer/{name}')
+    try:
+        assert graph.spin_until(client.service_is_ready, timeout_s=10.0)
+        future = client.call_async(request)
+        assert graph.spin_until(future.done, timeout_s=10.0)
+        return future.result()
+    finally:
+        graph.probe.destroy_client(client)
+
+
+@pytest.mark.ros
+def test_one_get_parameters_call_returns_every_value():
+    graph = Graph()
+    try:
+        names = list(
+            _call(graph, ListParameters, 'list_parameters', ListParameters.Request()).result.names
+        )
+        assert {spec.name for spec in SPECS} <= set(names)
+        values = _call(graph, GetParameters, 'get_parameters', GetParameters.Request(names=names))
+        assert len(values.values) == len(names), 'ros2 param dump needs every value'
+        assert all(value.type != ParameterType.PARAMETER_NOT_SET for value in values.values)
+        by_name = dict(zip(names, values.values, strict=True))
+        for spec in SPECS:
+            value = by_name[spec.name]
+            assert value.type == mvbb_ros.ros.node.parameter_descriptor(spec).type, spec.name
+            expected = PipelineSettings().value(spec.name)
+            assert Parameter.from_parameter_msg(
+                ParameterMsg(name=spec.name, value=value)
+            ).value == (expected if spec.kind is not list else array.array('d', expected))
+        assert list(by_name['crop_min'].double_array_value) == [], 'unset: an empty array'
+    finally:
+        graph.close()
+
+
+@pytest.mark.ros
+def test_vectors_take_integers_and_empty_arrays():
+    graph = Graph(parameter_overrides=[Parameter('up_direction', value=[0, 0, 1])])
+    try:
+        assert graph.node.settings.grasps.up == (0.0, 0.0, 1.0)
+        assert graph.node.get_parameter('up_direction').type_ == Parameter.Type.DOUBLE_ARRAY
+        request = SetParameters.Request(
+            parameters=[Parameter('up_direction', value=[]).to_parameter_msg()]
+        )
+        result = _call(graph, SetParameters, 'set_parameters', request).results[0]
+        assert result.successful, result.reason
+        assert graph.node.settings.grasps.up is None
+        values = _call(
+            graph, GetParameters, 'get_parameters', GetParameters.Request(names=['up_direction'])
+        ).values
+        assert values[0].type == ParameterType.PARAMETER_DOUBLE_ARRAY
+    finally:
+        graph.close()
+
+
+def test_unknown_names_are_named_with_the_closest_and_the_known_ones():
+    reason = validate_setting('gain_treshold', 0.9)
+    assert "'gain_treshold'" in reason and 'did you mean gain_threshold' in reason
+    assert all(spec.name in reason for spec in SPECS), 'the known names are listed'
+    with pytest.raises(ValueError, match='did you mean min_points'):
+        parse_assignments(['min_point:=3'])
+
+
+def test_misspelt_key_in_a_parameter_file_stops_the_node(tmp_path):
+    params = tmp_path / 'typo.yaml'
+    params.write_text(
+        '/**:\n  ros__parameters:\n    gain_treshold: 0.9\n    use_sim_time: false\n'
+    )
+    script = Path(sys.executable).parent / 'decomposer'
+    if not script.exists():
+        pytest.skip(f'{script} is not installed (run make test, which installs the package)')
+    result = subprocess.run(
+        [str(script), '--ros-args', '--params-file', str(params)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 1, output
+    assert 'gain_treshold' in output and 'did you mean gain_threshold' in output
+    assert 'known: gain_threshold, min_points' in output
+    assert 'Traceback' not in output, 'one clear line, no traceback'
+
+
+@pytest.mark.ros
+def test_misspelt_override_raises_in_process():
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        with pytest.raises(UnknownParameterError, match='voxel_sise'):
+            DecomposerNode(
+                context=context, parameter_overrides=[Parameter('voxel_sise', value=1.0)]
+            )
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_cli_params_file_ignores_ros_parameters_and_refuses_typos(tmp_path):
+    params = tmp_path / 'node.yaml'
+    params.write_text(
+        'decomposer:\n  ros__parameters:\n    use_sim_time: true\n    min_points: 5\n'
+    )
+    assert settings_from_mapping(read_params_file(params)).decomposition.min_points == 5
+    params.write_text('decomposer:\n  ros__parameters:\n    min_pionts: 5\n')
+    with pytest.raises(ValueError, match='did you mean min_points'):
+        settings_from_mapping(read_params_file(params))

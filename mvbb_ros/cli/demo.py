@@ -6,7 +6,8 @@
    (:func:`~mvbb_ros.cli.synthetic.scene_views`); each frame keeps the points of the objects (the
    table removed, as a table-top segmentation would) as one PointCloud2 at 5 Hz.
 2. Start the node (the ``decomposer`` executable, ``-r cloud_in:=/demo/segmented_objects``,
-   reliable input so that no frame is skipped) as a subprocess.
+   ``input_depth:=50`` so that no frame is skipped: the input is reliable, as the player)
+   as a subprocess.
 3. Play the bag through it with ``mvbb bag play`` (a subprocess) while a listener subscribed to
    ``/decomposer/boxes`` and ``/decomposer/grasps`` prints what the node published per frame.
 4. Process the same bag offline (the code of ``mvbb bag process``), print its table, and check
@@ -228,7 +229,7 @@ def _run(
 
     # The node starts first: importing Open3D takes a few seconds, while the bag is written.
     node_log = out / 'demo_node.log'
-    node_args = ['--ros-args', '-r', f'cloud_in:={DEMO_TOPIC}', '-p', 'reliable_input:=true']
+    node_args = ['--ros-args', '-r', f'cloud_in:={DEMO_TOPIC}', '-p', 'input_depth:=50']
     for assignment in assignments:
         node_args += ['-p', assignment]
     print(f'[1/5] starting the node: decomposer {" ".join(node_args)}  (log: {node_log})')

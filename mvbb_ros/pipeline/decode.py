@@ -45,6 +45,7 @@ points, so callers that need pixel structure can do::
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 import operator
 from typing import Any, NamedTuple
 
@@ -64,6 +65,7 @@ __all__ = [
     'XYZ_FIELDS',
     'data_bytes',
     'message_attribute',
+    'read_fields',
     'read_points',
     'read_xyz',
     'read_xyz_grid',
@@ -409,3 +411,51 @@ def read_points(cloud: Any) -> np.ndarray:
     for axis, column in enumerate(columns):
         points[:, axis] = column.compress(finite)
     return points
+
+
+def read_fields(cloud: Any, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """
+    Decode named fields of every point of a PointCloud2, each in its own dtype.
+
+    For clouds that carry more than coordinates, such as the node's ``~/grasp_candidates``
+    (one point per grasp with its width, score and indices). Points are in row-major order and
+    nothing is dropped (``N == height * width``); the layout rules of the module docstring
+    apply, so the cloud needs x, y and z.
+
+    :param cloud: a sensor_msgs/PointCloud2 (rclpy message, rosbags message or anything with the
+        same attributes).
+    :param names: the fields to read; None reads every field of a known datatype.
+    :return: name -> a new array of shape ``(N,)`` (``(N, count)`` for a field with count > 1)
+        in the field's type, native byte order.
+    :raises CloudFormatError: the cloud breaks the layout rules, or lacks one of `names`.
+    """
+    layout, data, _ = _xyz_view(cloud)
+    known = {
+        str(field.name): field
+        for field in message_attribute(cloud, 'fields')
+        if isinstance(field.datatype, int | np.integer) and int(field.datatype) in DATATYPE_CODES
+    }
+    wanted = list(known) if names is None else list(names)
+    missing = [name for name in wanted if name not in known]
+    if missing:
+        raise CloudFormatError(f'cloud has no field(s) {missing} (fields: {list(known)})')
+    count = layout.height * layout.width
+    order = '>' if layout.is_bigendian else '<'
+    values: dict[str, np.ndarray] = {}
+    for name in wanted:
+        field = known[name]
+        dtype = np.dtype(order + DATATYPE_CODES[int(field.datatype)])
+        shape = (layout.height, layout.width, int(field.count))
+        if count == 0:
+            column = np.empty(shape, dtype=dtype.newbyteorder('='))
+        else:
+            column = np.ndarray(
+                shape=shape,
+                dtype=dtype,
+                buffer=data,
+                offset=int(field.offset),
+                strides=(layout.row_step, layout.point_step, dtype.itemsize),
+            )
+        flat = column.reshape(count, int(field.count)).astype(dtype.newbyteorder('='))
+        values[name] = flat[:, 0] if int(field.count) == 1 else flat
+    return values

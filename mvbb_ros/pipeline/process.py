@@ -58,6 +58,31 @@ def _empty_counts(count: int = 0) -> FilterCounts:
     return FilterCounts(count, count, count, count)
 
 
+#: A segmented object in metres is smaller than this along every axis (metres); a wider cloud
+#: is rejected before any filter (a voxel grid on it would not fit 64-bit indices).
+MAX_EXTENT_M = 1000.0
+
+
+def implausible_extent(points: NDArray[np.floating]) -> str | None:
+    """
+    Return why finite `points` (N, 3) cannot be one object in metres, or None when they can.
+
+    A cloud of random bytes (coordinates up to 3.4e38), a cloud in the wrong units or a whole
+    map spans more than :data:`MAX_EXTENT_M` along some axis; the pipeline rejects it with
+    this reason instead of failing deep inside a filter. Where the object is does not matter.
+    """
+    if len(points) == 0:
+        return None
+    extent = points.max(axis=0).astype(np.float64) - points.min(axis=0).astype(np.float64)
+    if extent.max() <= MAX_EXTENT_M:
+        return None
+    spans = ' x '.join(f'{v:.3g}' for v in extent)
+    return (
+        f'absurd cloud: its points span {spans} m, more than {MAX_EXTENT_M:g} m; not a '
+        'segmented object in metres (random bytes, wrong units or a whole map?)'
+    )
+
+
 def process_points(
     points: ArrayLike,
     settings: PipelineSettings | None = None,
@@ -71,11 +96,16 @@ def process_points(
     :param settings: the pipeline settings; None for the node's defaults (``PipelineSettings()``;
         ``PipelineSettings.paper()`` is the paper's algorithm).
     :param timings_ms: step timings measured before this call (decoding), kept in the result.
-    :return: the result; empty with a `warning` when too few points remain.
+    :return: the result; empty with a `warning` when the points cannot be one object in
+        metres (:func:`implausible_extent`) or too few points remain.
     """
     settings = settings if settings is not None else PipelineSettings()
     timings = dict(timings_ms or {})
     start = time.perf_counter()
+    array = np.asarray(points)
+    reason = implausible_extent(array)
+    if reason is not None:
+        return PipelineResult(counts=_empty_counts(len(array)), timings_ms=timings, warning=reason)
     filtered, counts = filter_points(points, **asdict(settings.filtering))
     timings['filter'] = (time.perf_counter() - start) * 1e3
     min_points = settings.decomposition.min_points

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, fields, MISSING, replace
+import difflib
 import math
 import os
 import textwrap
@@ -79,17 +80,28 @@ class FilterSettings:
     outlier_std_ratio: float = 2.0
 
 
+#: Reliability of the node's input (the ``input_reliability`` setting); the first is the
+#: default: ``auto`` is reliable when every publisher of the input offers reliable delivery.
+InputReliability = Literal['auto', 'reliable', 'best_effort']
+INPUT_RELIABILITIES: tuple[InputReliability, ...] = get_args(InputReliability)
+
+
 @dataclass(frozen=True)
 class NodeSettings:
     """
     The settings of the node itself, beyond the pipeline's stages.
 
     :ivar publish_tree: also publish the non-leaf boxes of the hierarchy on ``~/tree``.
-    :ivar reliable_input: subscribe reliably with a deep queue (read-only: start-up only).
+    :ivar input_reliability: the input's reliability: ``auto`` (matched to the publishers),
+        ``reliable`` or ``best_effort``.
+    :ivar input_depth: the input's queue (keep last `input_depth`; 1: always the newest cloud).
+    :ivar stale_after: seconds without a cloud after which the diagnostics warn (0: never).
     """
 
     publish_tree: bool = True
-    reliable_input: bool = False
+    input_reliability: InputReliability = 'auto'
+    input_depth: int = 1
+    stale_after: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -321,12 +333,29 @@ SPECS: tuple[SettingSpec, ...] = (
         'Also publish the non-leaf boxes of the hierarchy on ~/tree.',
     ),
     SettingSpec(
-        'reliable_input',
+        'input_reliability',
         NodeSettings,
-        bool,
-        'Subscribe with reliable QoS and a deep queue (lossless bag evaluation) instead '
-        'of best effort, keep last 1.',
-        read_only=True,
+        str,
+        "Reliability of the cloud_in subscription: 'auto' is reliable while every publisher "
+        'offers reliable delivery and best effort otherwise (checked again as publishers come '
+        "and go), 'reliable' or 'best_effort' force it; a change re-creates the subscription.",
+        choices=INPUT_RELIABILITIES,
+    ),
+    SettingSpec(
+        'input_depth',
+        NodeSettings,
+        int,
+        'Queue depth of the cloud_in subscription (keep last N): 1 always works on the newest '
+        'cloud; more (with a reliable input) processes every cloud of a bag.',
+        (1, 1000),
+    ),
+    SettingSpec(
+        'stale_after',
+        NodeSettings,
+        float,
+        'The diagnostics warn when no cloud arrived for this many seconds (wall clock); '
+        '0 never warns.',
+        (0.0, 86400.0),
     ),
 )
 
@@ -424,11 +453,36 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
+#: Settings that were replaced: old name -> what to write instead.
+REPLACED_SETTINGS: dict[str, str] = {
+    'reliable_input': (
+        "input_reliability ('reliable_input: true' is now 'input_reliability: reliable' with "
+        "'input_depth: 50'; the default 'auto' matches the publishers)"
+    ),
+}
+#: Parameters of every rclpy node that are not ours (and not errors in a parameter file).
+ROS_PARAMETERS: tuple[str, ...] = ('use_sim_time', 'start_type_description_service')
+
+
+def is_ros_parameter(name: str) -> bool:
+    """Tell whether `name` is one of rclpy's own parameters (``use_sim_time``, QoS overrides)."""
+    return name in ROS_PARAMETERS or name.startswith('qos_overrides.')
+
+
+def unknown_setting_reason(name: str) -> str:
+    """Return why `name` is no setting: what replaced it, or the closest and the known names."""
+    if name in REPLACED_SETTINGS:
+        return f'{name} was replaced by {REPLACED_SETTINGS[name]}'
+    close = difflib.get_close_matches(name, list(SPEC_BY_NAME), n=1)
+    hint = f' (did you mean {close[0]}?)' if close else ''
+    return f'unknown setting {name!r}{hint}; known: {", ".join(SPEC_BY_NAME)}'
+
+
 def validate_setting(name: str, value: Any) -> str | None:
     """Return why `value` is not acceptable for setting `name`, or None when it is."""
     spec = SPEC_BY_NAME.get(name)
     if spec is None:
-        return f'unknown setting {name!r}; known: {", ".join(SPEC_BY_NAME)}'
+        return unknown_setting_reason(name)
     checks: dict[type, Callable[[SettingSpec, Any], str | None]] = {
         bool: _check_bool,
         int: _check_number,
@@ -509,7 +563,7 @@ def parse_assignments(assignments: Iterable[str]) -> dict[str, Any]:
         if not separator or not name:
             raise ValueError(f'expected name:=value, got {text!r}')
         if name not in SPEC_BY_NAME:
-            raise ValueError(f'unknown setting {name!r}; known: {", ".join(SPEC_BY_NAME)}')
+            raise ValueError(unknown_setting_reason(name))
         value = yaml.safe_load(raw) if raw else ''
         if (
             SPEC_BY_NAME[name].kind is float
@@ -530,6 +584,9 @@ def read_params_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """
     Return the ``ros__parameters`` of a ROS parameter file (the first node entry with some).
 
+    rclpy's own parameters (:func:`is_ros_parameter`, e.g. ``use_sim_time``) are left out; any
+    other name that is no setting makes :meth:`PipelineSettings.updated` fail, naming it.
+
     :raises ValueError: when the file has no ``<node>: ros__parameters:`` mapping.
     :raises OSError: when it cannot be read.
     """
@@ -538,7 +595,11 @@ def read_params_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     if isinstance(document, dict):
         for entry in document.values():
             if isinstance(entry, dict) and isinstance(entry.get('ros__parameters'), dict):
-                values = dict(entry['ros__parameters'])
+                values = {
+                    name: value
+                    for name, value in entry['ros__parameters'].items()
+                    if not is_ros_parameter(str(name))
+                }
                 for name, value in values.items():
                     spec = SPEC_BY_NAME.get(name)
                     if spec is not None and spec.kind is float and _is_number(value):

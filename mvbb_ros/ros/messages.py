@@ -6,7 +6,13 @@ Build the node's output messages from pipeline results (a thin layer over the ge
   (``<prefix>edges``) and a text label (``<prefix>labels``), with id = box index, so a box keeps
   its namespace and id from one cloud to the next;
 - grasps: a `geometry_msgs/PoseArray`, best first;
-- tree: the inner (non-leaf) boxes of the hierarchy as edges and labels (``tree_`` prefix);
+- grasp_candidates: a `sensor_msgs/PointCloud2` with one point per grasp in the order of
+  ``grasps``: float32 fields :data:`GRASP_FLOAT_FIELDS` (position, orientation, the opening the
+  gripper needs and the score) and int32 fields :data:`GRASP_INDEX_FIELDS`;
+- tree: the inner (split) boxes of the hierarchy as edges and labels (``tree_`` prefix);
+- box_list: a `sensor_msgs/PointCloud2` with one point per box, the leaves first (in the order
+  of ``boxes``), then the inner boxes (in the order of ``tree``): :data:`BOX_FLOAT_FIELDS` and
+  :data:`BOX_INDEX_FIELDS`;
 - diagnostics: a `diagnostic_msgs/DiagnosticStatus` with counts and timings.
 
 All are stamped with the input cloud's header; nothing else is assumed about frames.
@@ -23,10 +29,14 @@ from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
 from mvbb_ros.geometry.box import Box, EDGES
+from mvbb_ros.geometry.decomposition import DecompositionNode
 from mvbb_ros.geometry.grasps import Grasp
 from mvbb_ros.pipeline.process import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
+from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
+from numpy.typing import ArrayLike
+from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -43,8 +53,27 @@ PALETTE: tuple[tuple[float, float, float], ...] = (
     (0.74, 0.74, 0.13),
     (0.09, 0.75, 0.81),
 )
-#: The outputs of one cloud: topic suffix (below the node's namespace) -> message class.
-OUTPUT_TYPES: dict[str, type] = {'boxes': MarkerArray, 'tree': MarkerArray, 'grasps': PoseArray}
+#: The outputs of one cloud: topic suffix (below the node's namespace) -> message class, in
+#: publication order.
+OUTPUT_TYPES: dict[str, type] = {
+    'boxes': MarkerArray,
+    'tree': MarkerArray,
+    'box_list': PointCloud2,
+    'grasps': PoseArray,
+    'grasp_candidates': PointCloud2,
+}
+#: float32 fields of ``~/grasp_candidates`` after x, y, z (the gripper frame's origin):
+#: orientation (x, y, z, w), the opening the gripper needs (metres) and the score in [0, 1].
+GRASP_FLOAT_FIELDS = ('qx', 'qy', 'qz', 'qw', 'width', 'score')
+#: int32 fields of ``~/grasp_candidates``: the leaf box (its index on ``~/boxes`` and
+#: ``~/box_list``), the object of the cloud, and the face (+x, -x, +y, -y, +z, -z of the box).
+GRASP_INDEX_FIELDS = ('box_index', 'object_index', 'face')
+#: float32 fields of ``~/box_list`` after x, y, z (the box centre): orientation (x, y, z, w)
+#: and the edge lengths along the box's own x, y and z axes (metres).
+BOX_FLOAT_FIELDS = ('qx', 'qy', 'qz', 'qw', 'size_x', 'size_y', 'size_z')
+#: int32 fields of ``~/box_list``: points in the box, object index, row of the parent box (-1
+#: for a root) and 1 for a leaf, 0 for an inner box.
+BOX_INDEX_FIELDS = ('point_count', 'object_index', 'parent', 'leaf')
 #: RViz does not draw a CUBE with a zero scale; flat boxes get this thickness (metres).
 MIN_MARKER_SCALE = 1e-4
 
@@ -134,15 +163,123 @@ def grasp_pose_array(grasps: Sequence[Grasp], header: Header) -> PoseArray:
     )
 
 
+def _table_cloud(
+    header: Header,
+    xyz: Sequence[ArrayLike],
+    floats: Mapping[str, Sequence[float]],
+    integers: Mapping[str, Sequence[int]],
+) -> PointCloud2:
+    """Return a PointCloud2 of rows: float32 x, y, z and `floats`, then int32 `integers`."""
+    extra: dict[str, Any] = {
+        name: np.asarray(values, dtype=np.float32).reshape(-1) for name, values in floats.items()
+    }
+    extra.update(
+        {name: np.asarray(values, dtype=np.int32).reshape(-1) for name, values in integers.items()}
+    )
+    points = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+    cloud = create_cloud_xyz(points, header=header, fields_extra=extra, dtype=np.float32)
+    cloud.is_dense = True
+    return cloud
+
+
+def grasp_candidates_cloud(grasps: Sequence[Grasp], header: Header) -> PointCloud2:
+    """
+    Return the grasps as a PointCloud2, one point per grasp in the order of the PoseArray.
+
+    Fields: float32 x, y, z (the gripper frame's origin, as the pose), then
+    :data:`GRASP_FLOAT_FIELDS`, then int32 :data:`GRASP_INDEX_FIELDS`; packed, no padding.
+    """
+    quaternions = [grasp.quaternion for grasp in grasps]
+    floats: dict[str, Sequence[float]] = {
+        name: [float(q[axis]) for q in quaternions]
+        for axis, name in enumerate(GRASP_FLOAT_FIELDS[:4])
+    }
+    floats['width'] = [grasp.width for grasp in grasps]
+    floats['score'] = [grasp.score for grasp in grasps]
+    integers = {
+        'box_index': [grasp.box_index for grasp in grasps],
+        'object_index': [grasp.object_index for grasp in grasps],
+        'face': [grasp.face for grasp in grasps],
+    }
+    return _table_cloud(header, [grasp.position for grasp in grasps], floats, integers)
+
+
+def _object_of_nodes(
+    nodes: Sequence[DecompositionNode], leaf_objects: Mapping[int, int]
+) -> dict[int, int]:
+    """Return node index -> object index, an inner node taking the object of its leaves."""
+    parents = {node.index: node.parent for node in nodes}
+    objects: dict[int, int] = {}
+    for leaf, obj in leaf_objects.items():
+        index: int | None = leaf
+        while index is not None and index not in objects:
+            objects[index] = obj
+            index = parents[index]
+    return objects
+
+
+def box_list_cloud(result: PipelineResult | None, header: Header) -> PointCloud2:
+    """
+    Return every box of the hierarchy as a PointCloud2: the leaves, then the inner boxes.
+
+    Row ``i < len(leaves)`` is leaf ``i`` (``box_index`` of the grasps, marker id on
+    ``~/boxes``); the inner (split) boxes follow in the order of ``~/tree``. Fields: float32
+    x, y, z (the centre) and :data:`BOX_FLOAT_FIELDS`, int32 :data:`BOX_INDEX_FIELDS`.
+    """
+    decomposition = None if result is None else result.decomposition
+    leaves = [] if decomposition is None else decomposition.leaf_nodes
+    inner = [] if decomposition is None else _inner_nodes(decomposition.nodes)
+    rows = [*leaves, *inner]
+    row_of = {node.index: row for row, node in enumerate(rows)}
+    objects = (
+        {}
+        if result is None or decomposition is None
+        else _object_of_nodes(
+            decomposition.nodes,
+            {
+                leaf.index: obj
+                for leaf, obj in zip(leaves, result.leaf_object_indices, strict=True)
+            },
+        )
+    )
+    quaternions = [node.box.quaternion for node in rows]
+    floats: dict[str, Sequence[float]] = {
+        name: [float(q[axis]) for q in quaternions]
+        for axis, name in enumerate(BOX_FLOAT_FIELDS[:4])
+    }
+    floats.update(
+        {
+            name: [float(node.box.extents[axis]) for node in rows]
+            for axis, name in enumerate(BOX_FLOAT_FIELDS[4:])
+        }
+    )
+    integers = {
+        'point_count': [node.point_count for node in rows],
+        'object_index': [objects.get(node.index, 0) for node in rows],
+        'parent': [-1 if node.parent is None else row_of.get(node.parent, -1) for node in rows],
+        'leaf': [1] * len(leaves) + [0] * len(inner),
+    }
+    return _table_cloud(header, [node.box.center for node in rows], floats, integers)
+
+
+def _inner_nodes(nodes: Sequence[DecompositionNode]) -> list[DecompositionNode]:
+    """Return the nodes that were split (the inner boxes of the hierarchy), in node order."""
+    return [node for node in nodes if node.children]
+
+
 def diagnostic_status(
-    name: str, level: bytes, message: str, values: Mapping[str, object]
+    name: str,
+    level: bytes,
+    message: str,
+    values: Mapping[str, object],
+    hardware_id: str = '',
 ) -> DiagnosticStatus:
     """Return a DiagnosticStatus with `values` as key/value strings."""
     return DiagnosticStatus(
         level=level,
         name=name,
         message=message,
-        hardware_id='',
+        hardware_id=hardware_id,
         values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
     )
 
@@ -155,14 +292,14 @@ def output_messages(
 
     The node publishes them on ``~/<suffix>`` and `mvbb bag process` writes them, so what a bag
     gives offline is what the node publishes live. Without a decomposition (`result` None after
-    a failure, or a result with a warning) the messages are cleared: a lone DELETEALL and an
-    empty PoseArray.
+    a failure, or a result with a warning) the messages are cleared: a lone DELETEALL, an
+    empty PoseArray and PointCloud2s without points.
 
     :param result: the pipeline result, or None when processing failed.
     :param header: the input cloud's header; every message is stamped with it.
     :param settings: the settings in force (``publish_tree`` adds the ``tree`` message).
-    :return: ``boxes`` and ``grasps``, and ``tree`` when ``settings.node.publish_tree``, in
-        publication order.
+    :return: ``boxes``, ``box_list``, ``grasps`` and ``grasp_candidates``, and ``tree`` when
+        ``settings.node.publish_tree``, in publication order.
     """
     decomposition = None if result is None else result.decomposition
     leaves = [] if decomposition is None else list(decomposition.leaves)
@@ -170,12 +307,17 @@ def output_messages(
     labels = [f'{i}: {len(indices)} pts' for i, indices in enumerate(counts)]
     outputs: dict[str, Any] = {'boxes': box_markers(leaves, header, labels=labels)}
     if settings.node.publish_tree:
-        inner = (
-            []
-            if decomposition is None
-            else [node.box for node in decomposition.nodes if not node.is_leaf]
+        inner = [] if decomposition is None else _inner_nodes(decomposition.nodes)
+        outputs['tree'] = box_markers(
+            [node.box for node in inner], header, namespace_prefix='tree_', fill_alpha=0.0
         )
-        outputs['tree'] = box_markers(inner, header, namespace_prefix='tree_', fill_alpha=0.0)
+    outputs['box_list'] = box_list_cloud(result, header)
     grasps = [] if result is None else result.grasps
     outputs['grasps'] = grasp_pose_array(grasps, header)
+    outputs['grasp_candidates'] = grasp_candidates_cloud(grasps, header)
     return outputs
+
+
+def cleared_tree(header: Header) -> MarkerArray:
+    """Return the ``~/tree`` message that removes the drawn hierarchy (a lone DELETEALL)."""
+    return box_markers([], header)

@@ -3,39 +3,54 @@ The `decomposer` node: segmented PointCloud2 in, boxes and grasp poses out.
 
 Topics (relative names, remappable):
 
-- ``cloud_in`` (sensor_msgs/PointCloud2), subscribed best effort, keep last 1, so the node
-  always works on the newest cloud and hears reliable and best-effort publishers alike; the
-  read-only parameter ``reliable_input`` makes it reliable with a deep queue for lossless
-  evaluation of bags;
+- ``cloud_in`` (sensor_msgs/PointCloud2), keep last ``input_depth`` (1), reliability from
+  ``input_reliability``: ``auto`` matches the publishers (reliable while every publisher offers
+  it, best effort otherwise; see :mod:`mvbb_ros.ros.input`), ``reliable`` or ``best_effort``;
+  settable at runtime (the subscription is re-created);
 - ``~/boxes`` (visualization_msgs/MarkerArray): the leaf boxes (see :mod:`mvbb_ros.ros.messages`);
-- ``~/tree`` (visualization_msgs/MarkerArray): the non-leaf boxes of the hierarchy;
+- ``~/tree`` (visualization_msgs/MarkerArray): the inner boxes of the hierarchy (a lone
+  DELETEALL when ``publish_tree`` is turned off);
+- ``~/box_list`` (sensor_msgs/PointCloud2): one point per box, with its size and indices;
 - ``~/grasps`` (geometry_msgs/PoseArray): grasp poses, best first;
-- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): counts and timings, once a second.
+- ``~/grasp_candidates`` (sensor_msgs/PointCloud2): one point per grasp, in the order of
+  ``~/grasps``, with the opening it needs, its score and its indices;
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): counts, input rate and QoS, age of the last
+  cloud, timings; once a second on the wall clock, so also under ``use_sim_time`` without
+  ``/clock``.
 
-Outputs are reliable and stamped with the input header. Every tunable is a declared parameter
-(:mod:`mvbb_ros.pipeline.settings`); a change is validated, refused with a reason when bad, and the
-last cloud is processed again at once so tuning on a paused bag shows its effect.
+Outputs are reliable and transient local (keep last 1: a subscriber that comes later, such as
+RViz, gets the last result) and stamped with the input header. Every tunable is a declared
+parameter (:mod:`mvbb_ros.pipeline.settings`) with a typed value; a change is validated,
+refused with a reason when bad, and the last cloud is processed again at once so tuning on a
+paused bag shows its effect. A parameter of an unknown name (a misspelt key in a parameter file)
+stops the node at start-up, naming the key and the known names.
 """
 
 from __future__ import annotations
 
+import array
 from collections.abc import Sequence
+import math
 import sys
 import time
 import traceback
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseArray
+from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import (
+    is_ros_parameter,
     PipelineSettings,
     SettingSpec,
     SPEC_BY_NAME,
     SPECS,
+    unknown_setting_reason,
     validate_setting,
 )
-from mvbb_ros.ros.messages import diagnostic_status, output_messages
+from mvbb_ros.ros.diagnostics import ReceptionLog
+from mvbb_ros.ros.input import CloudInput
+from mvbb_ros.ros.messages import cleared_tree, diagnostic_status, output_messages, OUTPUT_TYPES
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -44,18 +59,28 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
-from visualization_msgs.msg import MarkerArray
+from std_msgs.msg import Header
 
 NODE_NAME = 'decomposer'
-#: Seconds between repeats of the same kind of warning.
+#: Seconds between repeats of the same kind of warning (rejected clouds, failures), per node.
 WARNING_THROTTLE_S = 5.0
-#: Queue depth of the input with ``reliable_input`` (clouds of up to a few MB each).
-RELIABLE_INPUT_DEPTH = 50
+#: Seconds (wall clock) between diagnostics.
+DIAGNOSTICS_PERIOD_S = 1.0
+#: QoS of every output: reliable, and transient local so that a late subscriber (RViz started
+#: after the node, a grasp planner that restarts) gets the last result.
+OUTPUT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 _PARAMETER_TYPES = {
     bool: ParameterType.PARAMETER_BOOL,
@@ -64,6 +89,10 @@ _PARAMETER_TYPES = {
     str: ParameterType.PARAMETER_STRING,
     list: ParameterType.PARAMETER_DOUBLE_ARRAY,
 }
+
+
+class UnknownParameterError(ValueError):
+    """Parameters given to the node (a parameter file, ``-p``) that it does not have."""
 
 
 def parameter_descriptor(spec: SettingSpec) -> ParameterDescriptor:
@@ -85,15 +114,39 @@ def parameter_descriptor(spec: SettingSpec) -> ParameterDescriptor:
         descriptor.additional_constraints = 'one of: ' + ', '.join(spec.choices)
     elif spec.vector_length:
         descriptor.additional_constraints = (
-            f'{spec.vector_length} numbers, or unset / empty to turn it off'
+            f'{spec.vector_length} numbers, or an empty array to turn it off'
         )
     return descriptor
+
+
+_ARRAY_TYPES = (
+    Parameter.Type.BYTE_ARRAY,
+    Parameter.Type.BOOL_ARRAY,
+    Parameter.Type.INTEGER_ARRAY,
+    Parameter.Type.DOUBLE_ARRAY,
+    Parameter.Type.STRING_ARRAY,
+)
+
+
+def vector_parameter(name: str, value: Any) -> Parameter:
+    """
+    Return a vector setting as a DOUBLE_ARRAY parameter when its value is numbers or empty.
+
+    ROS reads ``[0, 0, 1]`` as integers and ``[]`` as an array of no particular type; both
+    become DOUBLE_ARRAY. Anything else is returned as it is (and refused by the type check).
+    """
+    numbers = isinstance(value, list | tuple | array.array) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+    )
+    if numbers:
+        return Parameter(name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in value])
+    return Parameter(name, value=value)
 
 
 def _setting_value(spec: SettingSpec, value: Any) -> Any:
     """Map a ROS parameter value to the setting's value (unset arrays are empty)."""
     if spec.kind is list:
-        return [] if value is None else [float(v) for v in value]
+        return [] if value is None else list(value)
     return value
 
 
@@ -115,28 +168,18 @@ class DecomposerNode(Node):
         # Validation runs before declaration takes effect: rclpy calls this on every declared
         # override, so a bad value in a YAML file raises at start-up with our reason.
         self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_pre_set_parameters_callback(self._typed_vectors)
         self._declare_parameters()
+        self._check_unknown_parameters()
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        reliable = self._settings.node.reliable_input
-        input_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=RELIABLE_INPUT_DEPTH if reliable else 1,
-            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-        )
-        output_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE
-        )
-        self._boxes_pub = self.create_publisher(MarkerArray, '~/boxes', output_qos)
-        self._tree_pub = self.create_publisher(MarkerArray, '~/tree', output_qos)
-        self._grasps_pub = self.create_publisher(PoseArray, '~/grasps', output_qos)
+        self._publishers_by_suffix = {
+            suffix: self.create_publisher(message_class, f'~/{suffix}', OUTPUT_QOS)
+            for suffix, message_class in OUTPUT_TYPES.items()
+        }
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._subscription = self.create_subscription(
-            PointCloud2, 'cloud_in', self._on_cloud, input_qos
-        )
-        self._reprocess_trigger = self.create_guard_condition(self._reprocess_last_cloud)
-        self._diagnostics_timer = self.create_timer(1.0, self._publish_diagnostics)
-
+        self._receptions = ReceptionLog()
+        self._warned: dict[str, float] = {}  # warning kind -> when it was last logged
         self._last_cloud: PointCloud2 | None = None
         self._last_result: PipelineResult | None = None
         self._last_error: str | None = None
@@ -145,28 +188,75 @@ class DecomposerNode(Node):
             'clouds_processed': 0,
             'clouds_rejected': 0,
             'clouds_failed': 0,
+            'clouds_reprocessed': 0,
         }
+        self._input = CloudInput(
+            self,
+            self._on_cloud,
+            self._settings.node.input_reliability,
+            self._settings.node.input_depth,
+        )
+        self._reprocess_trigger = self.create_guard_condition(self._reprocess_last_cloud)
+        # The wall clock: diagnostics go on while a bag is paused under use_sim_time.
+        self._diagnostics_timer = self.create_timer(
+            DIAGNOSTICS_PERIOD_S,
+            self._publish_diagnostics,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
         self.get_logger().info(
-            f'listening on {self._subscription.topic_name} '
-            f'({"reliable" if reliable else "best effort, keep last 1"}); '
             f'gain_threshold={self._settings.decomposition.gain_threshold}, '
-            f'min_points={self._settings.decomposition.min_points}'
+            f'min_points={self._settings.decomposition.min_points}; publishing on '
+            f'{self.get_fully_qualified_name()}/{{{",".join(OUTPUT_TYPES)}}}'
         )
 
     # Parameters ----------------------------------------------------------------------------------
 
     def _declare_parameters(self) -> None:
+        """Declare every setting with its type and value (vectors: an empty array when unset)."""
         for spec in SPECS:
+            descriptor = parameter_descriptor(spec)
             default = self._settings.value(spec.name)
-            if spec.kind is list and not default:
-                default = Parameter.Type.DOUBLE_ARRAY  # unset: an empty array has no type
-            self.declare_parameter(spec.name, default, parameter_descriptor(spec))
-        values = {spec.name: self._parameter_value(spec) for spec in SPECS}
+            if spec.kind is not list:
+                self.declare_parameter(spec.name, default, descriptor)
+                continue
+            # rclpy cannot declare an empty array with a type (it infers one from the elements),
+            # and an uninitialized parameter empties every GetParameters answer that names it:
+            # declare the type, then set the value, the override's if there is one.
+            self.declare_parameter(
+                spec.name, Parameter.Type.DOUBLE_ARRAY, descriptor, ignore_override=True
+            )
+            override = self._parameter_overrides.get(spec.name)
+            value = default if override is None else override.value
+            result = self.set_parameters([vector_parameter(spec.name, value)])[0]
+            if not result.successful:
+                raise InvalidParameterValueException(spec.name, value, result.reason)
+        values = {
+            spec.name: _setting_value(spec, self.get_parameter(spec.name).value) for spec in SPECS
+        }
         self._settings = PipelineSettings().updated(values)
 
-    def _parameter_value(self, spec: SettingSpec) -> Any:
-        parameter = self.get_parameter_or(spec.name, Parameter(spec.name, value=None))
-        return _setting_value(spec, parameter.value)
+    def _typed_vectors(self, parameters: list[Parameter]) -> list[Parameter]:
+        """Turn numbers and empty arrays given for a vector into DOUBLE_ARRAY (pre-set)."""
+        return [
+            vector_parameter(parameter.name, parameter.value)
+            if parameter.name in SPEC_BY_NAME
+            and SPEC_BY_NAME[parameter.name].kind is list
+            and parameter.type_ in _ARRAY_TYPES
+            else parameter
+            for parameter in parameters
+        ]
+
+    def _check_unknown_parameters(self) -> None:
+        """Refuse parameters given for this node that it does not have (misspelt keys)."""
+        unknown = sorted(
+            name
+            for name in self._parameter_overrides
+            if not self.has_parameter(name) and not is_ros_parameter(name)
+        )
+        if unknown:
+            raise UnknownParameterError(
+                '; '.join(unknown_setting_reason(name) for name in unknown)
+            )
 
     def _validate_parameters(self, parameters: Sequence[Parameter]) -> SetParametersResult:
         """Refuse a change with a reason unless every value, and the result, is valid."""
@@ -193,11 +283,21 @@ class DecomposerNode(Node):
         changes = _our_changes(parameters)
         if not changes:
             return
+        before = self._settings.node
         self._settings = self._settings.updated(changes)
+        after = self._settings.node
         self.get_logger().info(
             'parameters changed: ' + ', '.join(f'{k}={v}' for k, v in changes.items())
         )
-        if self._last_cloud is not None:
+        if (after.input_reliability, after.input_depth) != (
+            before.input_reliability,
+            before.input_depth,
+        ):
+            self._input.configure(after.input_reliability, after.input_depth)
+        if before.publish_tree and not after.publish_tree:
+            header = self._last_cloud.header if self._last_cloud is not None else Header()
+            self._publishers_by_suffix['tree'].publish(cleared_tree(header))
+        if self._last_cloud is not None and set(changes) - {'input_reliability', 'input_depth'}:
             self._reprocess_trigger.trigger()
 
     @property
@@ -205,41 +305,46 @@ class DecomposerNode(Node):
         """Return the settings in force."""
         return self._settings
 
+    @property
+    def cloud_input(self) -> CloudInput:
+        """Return the input subscription (its QoS now, lost clouds, matched publishers)."""
+        return self._input
+
     # Processing ----------------------------------------------------------------------------------
 
     def _on_cloud(self, cloud: PointCloud2) -> None:
         self._stats['clouds_received'] += 1
+        self._receptions.record()
         self._last_cloud = cloud
-        self._process(cloud)
+        self._process(cloud, reprocess=False)
 
     def _reprocess_last_cloud(self) -> None:
         if self._last_cloud is not None:
-            self._process(self._last_cloud)
+            self._stats['clouds_reprocessed'] += 1
+            self._process(self._last_cloud, reprocess=True)
 
-    def _process(self, cloud: PointCloud2) -> None:
+    def _process(self, cloud: PointCloud2, *, reprocess: bool) -> None:
         """Run the pipeline on `cloud` and publish; any failure publishes cleared outputs."""
         start = time.perf_counter()
         try:
             result = process_cloud(cloud, self._settings)
         except Exception as error:  # the node must survive any cloud, whatever goes wrong
-            self._stats['clouds_failed'] += 1
+            self._count('clouds_failed', reprocess)
             self._last_error = f'{type(error).__name__}: {error}'
-            self.get_logger().error(
-                f'processing failed ({self._last_error}); publishing cleared outputs\n'
-                + traceback.format_exc(),
-                throttle_duration_sec=WARNING_THROTTLE_S,
-            )
+            if self._due('failed'):
+                self.get_logger().error(
+                    f'processing failed ({self._last_error}); publishing cleared outputs\n'
+                    + traceback.format_exc()
+                )
             self._publish(cloud, None)
             return
         self._last_error = None
         if result.warning is not None:
-            self._stats['clouds_rejected'] += 1
-            self.get_logger().warning(
-                f'{result.warning}; publishing cleared outputs',
-                throttle_duration_sec=WARNING_THROTTLE_S,
-            )
+            self._count('clouds_rejected', reprocess)
+            if self._due('rejected'):
+                self.get_logger().warning(f'{result.warning}; publishing cleared outputs')
         else:
-            self._stats['clouds_processed'] += 1
+            self._count('clouds_processed', reprocess)
         self._last_result = result
         self._publish(cloud, result)
         self.get_logger().debug(
@@ -247,18 +352,65 @@ class DecomposerNode(Node):
             f'{len(result.grasps)} grasps in {(time.perf_counter() - start) * 1e3:.1f} ms'
         )
 
+    def _due(self, kind: str) -> bool:
+        """Tell whether a warning of `kind` may be logged now (one per WARNING_THROTTLE_S)."""
+        now = time.monotonic()
+        if now - self._warned.get(kind, -math.inf) < WARNING_THROTTLE_S:
+            return False
+        self._warned[kind] = now
+        return True
+
+    def _count(self, outcome: str, reprocess: bool) -> None:
+        """Count the outcome of a received cloud (re-processing is counted on its own)."""
+        if not reprocess:
+            self._stats[outcome] += 1
+
     def _publish(self, cloud: PointCloud2, result: PipelineResult | None) -> None:
-        publishers = {
-            'boxes': self._boxes_pub,
-            'tree': self._tree_pub,
-            'grasps': self._grasps_pub,
-        }
         for suffix, message in output_messages(result, cloud.header, self._settings).items():
-            publishers[suffix].publish(message)
+            self._publishers_by_suffix[suffix].publish(message)
+
+    # Diagnostics ---------------------------------------------------------------------------------
+
+    def _input_values(self) -> tuple[dict[str, object], list[str]]:
+        """Return the input's diagnostic values and what is wrong with it (warnings)."""
+        cloud_input = self._input
+        publishers = cloud_input.publishers()
+        age = self._receptions.age_s()
+        values: dict[str, object] = {
+            'input_topic': cloud_input.topic_name,
+            'input_qos': cloud_input.description(),
+            'input_publishers': ', '.join(
+                f'{p.node} ({"reliable" if p.reliable else "best effort"})' for p in publishers
+            )
+            or 'none',
+            'input_rate_hz': f'{self._receptions.rate_hz():.2f}',
+            'last_cloud_age_s': 'never' if age is None else f'{age:.1f}',
+            'clouds_lost': 'not reported by the middleware'
+            if cloud_input.lost is None
+            else cloud_input.lost,
+            'incompatible_qos_events': cloud_input.incompatible,
+        }
+        problems = []
+        stale_after = self._settings.node.stale_after
+        waiting = self._receptions.waiting_s()
+        if stale_after > 0.0 and waiting > stale_after:
+            since = 'since start-up' if age is None else 'since the last one'
+            problems.append(
+                f'stale input: no cloud on {cloud_input.topic_name} for {waiting:.0f} s ({since}, '
+                f'{len(publishers)} publisher(s))'
+            )
+        if cloud_input.reliability == 'reliable' and any(not p.reliable for p in publishers):
+            problems.append(
+                f'a best-effort publisher of {cloud_input.topic_name} is not heard by the '
+                'reliable input (input_reliability: auto or best_effort hears it)'
+            )
+        return values, problems
 
     def _publish_diagnostics(self) -> None:
         result = self._last_result
         values: dict[str, object] = dict(self._stats)
+        input_values, problems = self._input_values()
+        values.update(input_values)
         if result is not None:
             values.update(
                 {
@@ -270,6 +422,9 @@ class DecomposerNode(Node):
                 }
             )
             values.update({f'{k}_ms': f'{v:.2f}' for k, v in result.timings_ms.items()})
+            note = empty_grasps_note(result, self._settings)
+            if note:
+                values['no_grasps_because'] = note
         if self._last_error is not None:
             level, message = DiagnosticStatus.ERROR, f'processing failed: {self._last_error}'
         elif result is not None and result.warning is not None:
@@ -277,17 +432,27 @@ class DecomposerNode(Node):
         elif result is None:
             level, message = DiagnosticStatus.OK, 'waiting for clouds'
         else:
-            level, message = DiagnosticStatus.OK, f'{len(result.leaves)} boxes'
+            level = DiagnosticStatus.OK
+            message = f'{len(result.leaves)} boxes, {len(result.grasps)} grasps'
+        if problems:
+            level = DiagnosticStatus.WARN if level == DiagnosticStatus.OK else level
+            message = '; '.join([message, *problems])
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [
-            diagnostic_status(f'{self.get_name()}: decomposition', level, message, values)
+            diagnostic_status(
+                f'{self.get_name()}: decomposition',
+                level,
+                message,
+                values,
+                hardware_id=self._input.topic_name,
+            )
         ]
         self._diagnostics_pub.publish(array)
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the node until SIGINT or shutdown; return 0 on a clean exit."""
+    """Run the node until SIGINT or shutdown; return 0 on a clean exit, 1 on bad parameters."""
     rclpy.init(args=None if args is None else list(args))
     node = None
     try:
@@ -295,6 +460,13 @@ def main(args: Sequence[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (
+        UnknownParameterError,
+        InvalidParameterValueException,
+        InvalidParameterTypeException,
+    ) as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f'bad parameters: {error}')
+        return 1
     finally:
         if node is not None:
             node.destroy_node()

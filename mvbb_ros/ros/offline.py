@@ -21,6 +21,7 @@ import time
 from typing import Any
 
 from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.bag import BagError, BagWriter, CLOUD_TYPE, CloudBag, ros_type_name
@@ -47,7 +48,8 @@ class ProcessedCloud:
     :ivar boxes: leaf boxes.
     :ivar grasps: grasp poses written.
     :ivar milliseconds: pipeline time (decode, filter, decompose, grasps).
-    :ivar note: why the outputs are empty (the node's warning), or ''.
+    :ivar note: why the outputs are empty (the node's warning), or which grasp filter removed
+        every grasp when there are boxes but no grasps, or ''.
     """
 
     index: int
@@ -108,7 +110,12 @@ class ProcessSummary:
     @property
     def empty(self) -> int:
         """Return how many clouds gave cleared outputs (with a note)."""
-        return sum(1 for row in self.rows if row.note)
+        return sum(1 for row in self.rows if row.note and not row.boxes)
+
+    @property
+    def without_grasps(self) -> int:
+        """Return how many clouds gave boxes but no grasps (the note says which filter)."""
+        return sum(1 for row in self.rows if row.boxes and not row.grasps)
 
     @property
     def clouds_per_second(self) -> float:
@@ -127,13 +134,13 @@ def run_pipeline(
     Run the node's pipeline on one rclpy cloud, surviving any failure as the node does.
 
     :return: ``(result, note)``: the pipeline result (None when processing raised) and why the
-        outputs are empty ('' when they are not).
+        outputs are empty, or why there are boxes but no grasps ('' when neither).
     """
     try:
         result = process_cloud(cloud, settings)
     except Exception as error:  # the node survives any cloud; so does the offline tool
         return None, f'processing failed: {type(error).__name__}: {error}'
-    return result, result.warning or ''
+    return result, result.warning or empty_grasps_note(result, settings)
 
 
 def _check_output(input_path: Path, output_path: Path, force: bool) -> None:
@@ -273,6 +280,11 @@ def format_totals(summary: ProcessSummary) -> list[str]:
     ]
     if summary.empty:
         lines.append(f'{summary.empty} of {clouds} clouds gave cleared outputs (see note)')
+    if summary.without_grasps:
+        lines.append(
+            f'{summary.without_grasps} of {clouds} clouds gave boxes but no grasps (the note '
+            'names the filter that removed them)'
+        )
     written = ', '.join(f'{topic} ({count})' for topic, count in summary.topics.items())
     lines.append(f'wrote {summary.output_path}: {written}')
     return lines

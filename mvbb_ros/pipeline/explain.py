@@ -1,0 +1,65 @@
+"""
+Say why a pipeline result has boxes but no grasps: which grasp filter removed the last ones.
+
+`mvbb bag process` prints it in its note column and the node puts it in its diagnostics, so a
+cloud whose every face is occluded, too wide for the gripper or approached from below does not
+come back silently empty. The counts come from
+:func:`~mvbb_ros.geometry.grasps.grasp_filter_counts`, the filters in the order the grasp stage
+applies them. No ROS import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+from mvbb_ros.geometry.grasps import grasp_filter_counts, GraspStats
+from mvbb_ros.pipeline.process import PipelineResult
+from mvbb_ros.pipeline.settings import PipelineSettings
+
+
+def _filter_steps(
+    stats: GraspStats, settings: PipelineSettings, thinnest: float
+) -> list[tuple[int, str]]:
+    """Return (hypotheses left after the filter, why it removes them), in filter order."""
+    grasps = settings.grasps
+    below = (
+        f'up_direction {list(grasps.up)}'
+        if grasps.up is not None
+        else f'support plane {list(grasps.support_plane or ())}'
+    )
+    return [
+        (stats.after_occlusion, 'occlusion: every face is covered by or touches another box'),
+        (
+            stats.after_width,
+            f'gripper_max_width: every free face needs more than {grasps.gripper_max_width:g} m '
+            f'(the thinnest box edge is {thinnest:.3g} m)',
+        ),
+        (
+            stats.after_support,
+            f'support: every remaining approach comes from below ({below}) or too close to it',
+        ),
+    ]
+
+
+def empty_grasps_note(result: PipelineResult, settings: PipelineSettings) -> str:
+    """
+    Return which filter removed every grasp of a result that has boxes, or '' otherwise.
+
+    :param result: a pipeline result.
+    :param settings: the settings it was made with.
+    :return: e.g. ``'5 boxes, 0 grasps: gripper_max_width: every free face needs more than
+        0.08 m (the thinnest box edge is 0.12 m); hypotheses 120 -> occlusion 64 -> width 0'``;
+        '' when the result has grasps, or no boxes (its warning says why).
+    """
+    if result.decomposition is None or not result.leaves or result.grasps:
+        return ''
+    stats = grasp_filter_counts(result.decomposition, **asdict(settings.grasps))
+    thinnest = min(float(box.extents.min()) for box in result.leaves)
+    counts = (
+        f'hypotheses {stats.hypotheses} -> occlusion {stats.after_occlusion} -> width '
+        f'{stats.after_width} -> support {stats.after_support}'
+    )
+    for left, reason in _filter_steps(stats, settings, thinnest):
+        if left == 0:
+            return f'{stats.boxes} boxes, 0 grasps: {reason}; {counts}'
+    return f'{stats.boxes} boxes, 0 grasps; {counts}'
