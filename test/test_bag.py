@@ -562,16 +562,16 @@ def test_wall_offsets_scale_with_the_rate():
 class _Listener:
     """The test's own node, in its own context: counts clouds on TOPIC and /clock."""
 
-    def __init__(self, topic: str = TOPIC) -> None:
+    def __init__(self, topic: str = TOPIC, message_class: type = PointCloud2) -> None:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node('bag_play_test_listener', context=self.context)
-        self.clouds: list[PointCloud2] = []
+        self.clouds: list = []
         self.clock: list[int] = []
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE
         )
-        self.node.create_subscription(PointCloud2, topic, self.clouds.append, qos)
+        self.node.create_subscription(message_class, topic, self.clouds.append, qos)
         self.node.create_subscription(
             Clock,
             '/clock',
@@ -660,19 +660,93 @@ def test_play_loops_until_sigint_and_exits_zero(tmp_path, listener):
     assert 'Traceback' not in err
 
 
-@pytest.mark.ros
-def test_play_without_subscribers_ends_by_itself(tmp_path):
-    bag = write_bag(tmp_path / 'in', [(TOPIC, t, _test_clouds()[0]) for t in BAG_TIMES[:2]])
-    result = subprocess.run(
-        [sys.executable, '-m', 'mvbb_ros.cli.main', 'bag', 'play', str(bag), '--rate', '20']
-        + ['--wait-for-subscribers', '0.2'],
+def _play_to_the_end(bag: Path, *arguments: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, '-m', 'mvbb_ros.cli.main', 'bag', 'play', str(bag), *arguments],
         capture_output=True,
         text=True,
-        timeout=60,
+        timeout=120,
         check=False,
     )
+
+
+@pytest.mark.ros
+def test_play_without_subscribers_plays_nothing_and_fails(tmp_path):
+    bag = write_bag(tmp_path / 'in', [(TOPIC, t, _test_clouds()[0]) for t in BAG_TIMES[:2]])
+    result = _play_to_the_end(bag, '--rate', '20', '--wait-for-subscribers', '0.5')
+    assert result.returncode == 1, result.stderr
+    assert f'no subscriber on {TOPIC} after 0.5 s' in result.stderr
+    assert 'nothing played' in result.stderr and 'published' not in result.stderr
+
+
+@pytest.mark.ros
+def test_play_without_waiting_plays_to_nobody_and_exits_zero(tmp_path):
+    bag = write_bag(tmp_path / 'in', [(TOPIC, t, _test_clouds()[0]) for t in BAG_TIMES[:2]])
+    result = _play_to_the_end(bag, '--rate', '20', '--wait-for-subscribers', '0')
     assert result.returncode == 0, result.stderr
-    assert 'playing anyway' in result.stderr and 'published 2 clouds' in result.stderr
+    assert 'done: published 2 clouds' in result.stderr and 'waiting' not in result.stderr
+
+
+def test_play_default_wait_is_long_enough_for_discovery_and_a_starting_node():
+    from mvbb_ros.cli.main import build_parser, PLAY_WAIT_S
+    from mvbb_ros.ros.bag_play import DEFAULT_WAIT_S
+
+    assert PLAY_WAIT_S == DEFAULT_WAIT_S >= 10.0
+    assert build_parser().parse_args(['bag', 'play', 'x']).wait_for_subscribers == DEFAULT_WAIT_S
+
+
+@pytest.mark.ros
+def test_play_waits_by_default_for_a_subscriber_that_comes_late(tmp_path):
+    clouds = _test_clouds()
+    bag = write_bag(tmp_path / 'in', list(zip([TOPIC] * 3, BAG_TIMES, clouds, strict=True)))
+    player = _play(str(bag), '--rate', '10')  # the default wait
+    try:
+        assert player.stderr is not None
+        assert 'waiting up to' in player.stderr.readline(), 'it says that it waits'
+        time.sleep(2.0)  # nobody there yet: the player must hold the clouds back
+        late = _Listener()
+        try:
+            assert late.spin_until(lambda: len(late.clouds) == 3, timeout_s=60.0)
+            assert late.spin_until(lambda: player.poll() is not None, timeout_s=60.0)
+        finally:
+            late.close()
+        _, err = player.communicate(timeout=10)
+    finally:
+        if player.poll() is None:
+            player.kill()
+    assert player.returncode == 0, err
+    assert [c.header for c in late.clouds] == [c.header for c in clouds], 'none lost'
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_play_through_a_node_started_at_the_same_time_answers_every_cloud(tmp_path):
+    """The case of issue 18: 11 clouds at --rate 4 to a node that is still starting."""
+    count = 11
+    clouds = [_cloud(l_shape_points(seed=k, count=400), sec=200 + k) for k in range(count)]
+    times = [1_000_000_000 * (k + 1) for k in range(count)]
+    bag = write_bag(tmp_path / 'in', list(zip([TOPIC] * count, times, clouds, strict=True)))
+    node = subprocess.Popen(
+        [sys.executable, '-m', 'mvbb_ros.ros.node', '--ros-args', '-r', f'cloud_in:={TOPIC}']
+        + ['-p', 'input_depth:=50'],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    answers = _Listener(topic=OUTPUT_GRASPS, message_class=PoseArray)
+    try:
+        result = _play_to_the_end(bag, '--rate', '4')
+        assert result.returncode == 0, result.stderr
+        answered = {200 + k for k in range(count)}
+        assert answers.spin_until(
+            lambda: {m.header.stamp.sec for m in answers.clouds} >= answered, timeout_s=60.0
+        ), f'{len(answers.clouds)} of {count} answered'
+    finally:
+        answers.close()
+        node.send_signal(signal.SIGINT)
+        try:
+            node.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            node.kill()
 
 
 def test_default_settings_are_the_node_defaults():

@@ -41,6 +41,9 @@ if TYPE_CHECKING:  # the pipeline loads Open3D: imported when a command runs (se
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: `mvbb bag play`'s default wait for subscribers, seconds (``bag_play.DEFAULT_WAIT_S``, which
+#: this module does not import: the ROS modules load only in the commands that need them).
+PLAY_WAIT_S = 30.0
 
 
 def _positive_float(text: str) -> float:
@@ -105,10 +108,11 @@ def _add_bag_commands(commands: argparse._SubParsersAction) -> None:
     play.add_argument(
         '--wait-for-subscribers',
         type=_non_negative_float,
-        default=1.0,
+        default=PLAY_WAIT_S,
         metavar='SECONDS',
-        help='wait up to this long for a subscriber on every cloud topic before playing, so no '
-        'cloud is lost to discovery (default 1; 0 does not wait)',
+        help='wait until a subscriber is matched on every cloud topic before playing, so no '
+        f'cloud is lost to discovery; after this long without one, play nothing and exit 1 '
+        f'(default {PLAY_WAIT_S:g}; 0 plays at once, subscribed or not)',
     )
     _add_progress_option(play)
     play.set_defaults(handler=_run_bag_play)
@@ -380,6 +384,8 @@ def _run_bag_play(args: argparse.Namespace) -> int:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
+    if not stats.subscribers_found:
+        return EXIT_FAILURE
     loops = f' ({stats.loops} complete loops)' if args.loop else ''
     clock = f', {stats.clock_messages} /clock messages' if args.clock else ''
     ending = 'stopped' if stats.interrupted else 'done'

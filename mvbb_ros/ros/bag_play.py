@@ -11,9 +11,12 @@ With ``clock`` the player also publishes ``/clock`` (rosgraph_msgs/Clock) with t
 on bag time. On a loop, bag time jumps back to the start, as with ``ros2 bag play --loop``.
 
 Publishers are reliable (keep last 10), which reliable and best-effort subscribers both hear.
-Before playing, the player waits up to ``wait_for_subscribers`` seconds for a subscriber on
-every cloud topic, so the first clouds are not lost to discovery; at the end it waits (up to a
-few seconds) until reliable subscribers have acknowledged everything.
+Before playing, the player waits until a subscriber is matched on every cloud topic (up to
+``wait_for_subscribers`` seconds, by default :data:`DEFAULT_WAIT_S`, long enough for DDS
+discovery and a node that is still starting), so the first clouds are not lost to discovery;
+when none comes it plays nothing and says so (:attr:`PlayStats.subscribers_found` is False).
+``wait_for_subscribers=0`` plays at once, subscribed or not. At the end it waits (up to a few
+seconds) until reliable subscribers have acknowledged everything.
 """
 
 from __future__ import annotations
@@ -40,8 +43,9 @@ from sensor_msgs.msg import PointCloud2
 
 #: Default rate of /clock messages, Hz (as ``ros2 bag play --clock``).
 DEFAULT_CLOCK_HZ = 40.0
-#: Default wait for subscribers before playing, seconds.
-DEFAULT_WAIT_S = 1.0
+#: Default wait for subscribers before playing, seconds: DDS discovery takes up to a few
+#: seconds, and a node started at the same time needs several more to import its libraries.
+DEFAULT_WAIT_S = 30.0
 #: How long to wait at the end for reliable subscribers to acknowledge the last clouds, seconds.
 ACK_TIMEOUT_S = 5.0
 #: Depth of the publishers' queues.
@@ -59,7 +63,8 @@ class PlayStats:
     :ivar loops: complete passes through the bag.
     :ivar seconds: wall-clock time of the playback (after waiting for subscribers).
     :ivar interrupted: True when stopped (SIGINT) before the end.
-    :ivar subscribers_found: False when the wait for subscribers timed out.
+    :ivar subscribers_found: False when the wait for subscribers timed out (nothing was
+        played then).
     """
 
     topics: list[str]
@@ -146,7 +151,8 @@ def play_bag(
     :param clock: also publish /clock with the bag time.
     :param clock_hz: /clock rate, Hz; > 0.
     :param wait_for_subscribers: seconds to wait for a subscriber on every cloud topic before
-        playing (0: do not wait); the playback starts anyway when none comes.
+        playing; when none comes in that time nothing is played. 0 plays at once, subscribed
+        or not.
     :param stop: set it (from a signal handler or another thread) to end the playback.
     :param progress: draw a progress bar on `log`; None draws it only on a terminal.
     :param log: where messages and the bar go; None means stderr.
@@ -167,13 +173,20 @@ def play_bag(
         stats = PlayStats(topics=topics)
         player = _Player(topics, clock)
         try:
-            stats.subscribers_found = _wait_for_subscribers(player, wait_for_subscribers, stop)
+            stats.subscribers_found = _wait_for_subscribers(
+                player, wait_for_subscribers, stop, log
+            )
+            if stop.is_set():
+                stats.interrupted = True
+                return stats
             if not stats.subscribers_found:
                 print(
-                    f'no subscriber on {", ".join(topics)} after {wait_for_subscribers:g} s; '
-                    'playing anyway',
+                    f'no subscriber on {", ".join(topics)} after {wait_for_subscribers:g} s '
+                    f'(ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")}); nothing played '
+                    '(--wait-for-subscribers 0 plays without waiting)',
                     file=log,
                 )
+                return stats
             bar = ProgressBar(total, label='playing', stream=log, enabled=progress)
             start = time.monotonic()
             try:
@@ -196,11 +209,20 @@ def play_bag(
     return stats
 
 
-def _wait_for_subscribers(player: _Player, timeout_s: float, stop: threading.Event) -> bool:
+def _wait_for_subscribers(
+    player: _Player, timeout_s: float, stop: threading.Event, log: TextIO
+) -> bool:
+    if timeout_s <= 0.0:
+        return True
+    if not player.all_subscribed():
+        print(
+            f'waiting up to {timeout_s:g} s for a subscriber on {", ".join(player.clouds)}',
+            file=log,
+        )
     deadline = time.monotonic() + timeout_s
     while not player.all_subscribed():
         if time.monotonic() >= deadline or stop.is_set():
-            return timeout_s <= 0.0 or player.all_subscribed()
+            return player.all_subscribed()
         stop.wait(0.02)
     return True
 
