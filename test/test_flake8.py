@@ -4,7 +4,7 @@ from ament_flake8.main import main_with_errors
 from conftest import REPO_ROOT
 import pytest
 
-CHECKED = ['mvbb_ros', 'test', 'benchmarks', 'tools', 'setup.py']
+CHECKED = ['mvbb_ros', 'test', 'benchmarks', 'tools', 'launch', 'setup.py']
 
 
 @pytest.mark.flake8

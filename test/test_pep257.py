@@ -9,5 +9,5 @@ import pytest
 @pytest.mark.pep257
 def test_pep257(monkeypatch):
     monkeypatch.chdir(REPO_ROOT)
-    rc = main(argv=['mvbb_ros', 'test', 'benchmarks', 'tools', 'setup.py'])
+    rc = main(argv=['mvbb_ros', 'test', 'benchmarks', 'tools', 'launch', 'setup.py'])
     assert rc == 0, 'Found code style errors / warnings'
