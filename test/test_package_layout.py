@@ -8,7 +8,9 @@ import sys
 import xml.etree.ElementTree as ElementTree
 
 from conftest import REPO_ROOT
+from mvbb_ros.ros.messages import OUTPUT_TYPES
 import pytest
+import yaml
 
 VENV_BIN = Path(sys.executable).parent
 
@@ -66,6 +68,55 @@ def test_package_xml_is_format_3_ament_python():
     assert root.findtext('export/build_type') == 'ament_python'
     exec_depends = {element.text for element in root.findall('exec_depend')}
     assert {'rclpy', 'sensor_msgs', 'visualization_msgs', 'geometry_msgs'} <= exec_depends
+    assert {'launch', 'launch_ros'} <= exec_depends, 'launch/decomposer.launch.py'
+
+
+def test_rosdep_keys_cover_the_pip_only_dependencies():
+    """Rosbags (the bag tools) is a rosdep pip key like open3d, not a manual pip install."""
+    text = (REPO_ROOT / 'package.xml').read_text()
+    exec_depends = {
+        element.text
+        for element in ElementTree.parse(REPO_ROOT / 'package.xml').findall('exec_depend')
+    }
+    assert {'python3-open3d-pip', 'python3-rosbags-pip', 'python3-numba'} <= exec_depends
+    assert 'no rosdep' not in text and 'pip install rosbags' not in text
+
+
+def test_readme_recipe_for_ubuntu_24_04():
+    """The robot section works under PEP 668: a venv colcon builds with, or the pip override."""
+    readme = (REPO_ROOT / 'README.md').read_text()
+    robot = readme[readme.index('## On a robot with ROS 2 Jazzy') :]
+    robot = robot[: robot.index('\n## ', 1)]
+    assert 'python3 -m venv --system-site-packages' in robot
+    assert 'COLCON_IGNORE' in robot and 'python -m colcon build' in robot
+    assert '--skip-keys' in robot and 'PIP_BREAK_SYSTEM_PACKAGES=1' in robot
+    assert 'ros2 run mvbb_ros mvbb ' in robot
+    assert 'ros2 launch mvbb_ros decomposer.launch.py' in robot
+    assert '\npip install rosbags' not in robot, 'refused by pip on Ubuntu 24.04 (PEP 668)'
+
+
+def test_rviz_config_matches_the_readme():
+    """Fixed Frame the README names, the cloud on the topic it remaps, latched outputs."""
+    config = yaml.safe_load((REPO_ROOT / 'config' / 'mvbb.rviz').read_text())
+    manager = config['Visualization Manager']
+    fixed_frame = manager['Global Options']['Fixed Frame']
+    topics = {
+        display['Topic']['Value']: display['Topic']
+        for display in manager['Displays']
+        if 'Topic' in display
+    }
+    readme = (REPO_ROOT / 'README.md').read_text()
+    assert 'Fixed Frame' in readme and f'`{fixed_frame}`' in readme
+    clouds = [topic for topic in topics if not topic.startswith('/decomposer/')]
+    assert len(clouds) == 1 and f'cloud_in:={clouds[0]}' in readme
+    assert topics[clouds[0]]['Reliability Policy'] == 'Reliable', 'best effort loses big clouds'
+    outputs = {topic for topic in topics if topic.startswith('/decomposer/')}
+    assert outputs == {f'/decomposer/{suffix}' for suffix in OUTPUT_TYPES} - {
+        '/decomposer/box_list'
+    }
+    for topic in outputs:
+        assert topics[topic]['Durability Policy'] == 'Transient Local', topic
+        assert topics[topic]['Reliability Policy'] == 'Reliable', topic
 
 
 @pytest.mark.slow
@@ -80,6 +131,13 @@ def test_colcon_install_layout(colcon_install: Path):
         prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'mvbb_ros'
     ).is_file()
     assert (prefix / 'share' / 'mvbb_ros' / 'config' / 'decomposer.yaml').is_file()
+    assert (prefix / 'share' / 'mvbb_ros' / 'config' / 'mvbb.rviz').is_file()
+    assert (prefix / 'share' / 'mvbb_ros' / 'launch' / 'decomposer.launch.py').is_file()
+    # Built with a venv's colcon (the README's Ubuntu 24.04 recipe), the executables run with
+    # that venv's Python, so `ros2 run` finds the pip-installed open3d and rosbags.
+    for executable in ('decomposer', 'mvbb'):
+        shebang = (prefix / 'lib' / 'mvbb_ros' / executable).read_text().splitlines()[0]
+        assert shebang.startswith('#!') and Path(shebang[2:]).parent == VENV_BIN, shebang
 
 
 @pytest.mark.slow
