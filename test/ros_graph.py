@@ -70,24 +70,16 @@ class Graph:
         reliable = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
         )
-        self.probe.create_subscription(
-            MarkerArray, '/decomposer/boxes', self.boxes.append, reliable
+        recorded = (
+            (MarkerArray, '/decomposer/boxes', self.boxes),
+            (MarkerArray, '/decomposer/tree', self.trees),
+            (PoseArray, '/decomposer/grasps', self.grasps),
+            (PointCloud2, '/decomposer/grasp_candidates', self.candidates),
+            (PointCloud2, '/decomposer/box_list', self.box_lists),
+            (DiagnosticArray, '/diagnostics', self.diagnostics),
         )
-        self.probe.create_subscription(
-            MarkerArray, '/decomposer/tree', self.trees.append, reliable
-        )
-        self.probe.create_subscription(
-            PoseArray, '/decomposer/grasps', self.grasps.append, reliable
-        )
-        self.probe.create_subscription(
-            PointCloud2, '/decomposer/grasp_candidates', self.candidates.append, reliable
-        )
-        self.probe.create_subscription(
-            PointCloud2, '/decomposer/box_list', self.box_lists.append, reliable
-        )
-        self.probe.create_subscription(
-            DiagnosticArray, '/diagnostics', self.diagnostics.append, reliable
-        )
+        for message_class, topic, messages in recorded:
+            self.probe.create_subscription(message_class, topic, messages.append, reliable)
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
 
@@ -185,6 +177,12 @@ class CloudSource:
         answer = self._send('count')
         assert answer.startswith('count '), answer
         return int(answer.split()[1])
+
+    def __enter__(self) -> CloudSource:
+        return self
+
+    def __exit__(self, *exception: object) -> None:
+        self.close()
 
     def close(self) -> None:
         """End the process (end of its input)."""

@@ -46,9 +46,13 @@ def _wait_until_heard(graph: Graph, source: CloudSource, reliability: str) -> No
 
 
 def _endpoint_qos(graph: Graph) -> QoSProfile:
-    endpoints = graph.node.get_subscriptions_info_by_topic('/cloud_in')
-    assert len(endpoints) == 1, 'one input subscription at a time'
-    return endpoints[0].qos_profile
+    """Return the input's QoS as the graph reports it, once a replaced one has left it."""
+
+    def single() -> bool:
+        return len(graph.node.get_subscriptions_info_by_topic('/cloud_in')) == 1
+
+    assert graph.spin_until(single, timeout_s=10.0), 'one input subscription at a time'
+    return graph.node.get_subscriptions_info_by_topic('/cloud_in')[0].qos_profile
 
 
 def test_auto_rule_reliable_only_when_every_publisher_offers_it():
@@ -61,8 +65,7 @@ def test_auto_rule_reliable_only_when_every_publisher_offers_it():
 
 
 def test_big_clouds_from_a_reliable_publisher_are_all_answered_by_default(graph):
-    source = CloudSource('reliable')
-    try:
+    with CloudSource('reliable') as source:
         _wait_until_heard(graph, source, 'reliable')
         assert graph.node.cloud_input.qos.depth == 1, 'keep last 1 stays the default'
         answered = 0
@@ -71,13 +74,10 @@ def test_big_clouds_from_a_reliable_publisher_are_all_answered_by_default(graph)
             answered += graph.wait_for_answer(sec, 60.0)
         assert answered == 3, f'{answered} of 3 clouds of {BIG} points answered'
         assert graph.node._stats['clouds_received'] == 3
-    finally:
-        source.close()
 
 
 def test_best_effort_publishers_are_still_answered(graph):
-    source = CloudSource('best_effort')
-    try:
+    with CloudSource('best_effort') as source:
         _wait_until_heard(graph, source, 'best_effort')
         assert _endpoint_qos(graph).reliability == ReliabilityPolicy.BEST_EFFORT
         for sec in (1, 2):  # best effort may drop one; a camera sends the next
@@ -86,27 +86,19 @@ def test_best_effort_publishers_are_still_answered(graph):
                 if graph.wait_for_answer(sec, 2.0):
                     break
             assert graph.answer(sec) is not None, f'cloud {sec} of a best-effort publisher'
-    finally:
-        source.close()
 
 
 def test_auto_is_checked_again_as_publishers_come_and_go(graph):
-    reliable = CloudSource('reliable')
-    try:
+    with CloudSource('reliable') as reliable:
         _wait_until_heard(graph, reliable, 'reliable')
-        best_effort = CloudSource('best_effort')
-        try:
+        with CloudSource('best_effort') as best_effort:
             _wait_until_heard(graph, best_effort, 'best_effort')
-        finally:
-            best_effort.close()
         # The best-effort publisher is gone: every publisher left offers reliable delivery.
         _wait_until_heard(graph, reliable, 'reliable')
         assert _endpoint_qos(graph).reliability == ReliabilityPolicy.RELIABLE
         assert graph.node.cloud_input.created >= 3
         reliable.publish(7, BIG)
         assert graph.wait_for_answer(7, 60.0)
-    finally:
-        reliable.close()
 
 
 def test_input_reliability_and_depth_are_settable_at_runtime(graph):
@@ -148,8 +140,7 @@ def test_forced_reliable_input_reports_a_best_effort_publisher(graph):
 def test_lost_clouds_show_in_the_diagnostics(graph):
     ok, reason = _set_parameter(graph, 'input_reliability', 'best_effort')
     assert ok, reason
-    source = CloudSource('reliable')
-    try:
+    with CloudSource('reliable') as source:
         _wait_until_heard(graph, source, 'best_effort')
         sent = answered = 0
         cloud_input = graph.node.cloud_input
@@ -170,8 +161,6 @@ def test_lost_clouds_show_in_the_diagnostics(graph):
             return values.get('clouds_lost') == str(cloud_input.lost)
 
         assert graph.spin_until(reported, 10.0)
-    finally:
-        source.close()
 
 
 def test_the_old_reliable_input_parameter_fails_naming_its_replacement():

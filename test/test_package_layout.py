@@ -85,8 +85,7 @@ def test_rosdep_keys_cover_the_pip_only_dependencies():
 def test_readme_recipe_for_ubuntu_24_04():
     """The robot section works under PEP 668: a venv colcon builds with, or the pip override."""
     readme = (REPO_ROOT / 'README.md').read_text()
-    robot = readme[readme.index('## On a robot with ROS 2 Jazzy') :]
-    robot = robot[: robot.index('\n## ', 1)]
+    robot = readme.partition('## On a robot with ROS 2 Jazzy')[2].partition('\n## ')[0]
     assert 'python3 -m venv --system-site-packages' in robot
     assert 'COLCON_IGNORE' in robot and 'python -m colcon build' in robot
     assert '--skip-keys' in robot and 'PIP_BREAK_SYSTEM_PACKAGES=1' in robot
