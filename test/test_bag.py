@@ -343,7 +343,7 @@ def test_node_and_bag_process_outputs_are_identical(tmp_path):
         for suffix, message in live.items()
     }
     assert len(live['grasps'].poses) == 7
-    assert len([m for m in live['boxes'].markers if m.ns == 'boxes']) >= 2
+    assert len([m for m in live['boxes'].markers if m.ns == 'object0/boxes']) >= 2
     for suffix in live:
         assert offline[suffix] == live[suffix], f'{suffix} differs between node and bag process'
 

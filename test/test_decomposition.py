@@ -409,6 +409,7 @@ def test_json_has_the_tree_and_the_boxes():
         'seed': 0,
         'grid_cells': result.settings.grid_cells,
         'order': 'volume',
+        'min_thickness': 0.0,
     }
     assert document['point_count'] == len(points)
     assert document['dropped_point_count'] == 1

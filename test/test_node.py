@@ -56,7 +56,8 @@ def test_cloud_comes_back_as_markers_and_poses(graph):
     labels = _leaf_markers(boxes, Marker.TEXT_VIEW_FACING)
     assert len(cubes) == len(edges) == len(labels) == 2, 'the L shape is two boxes'
     assert [m.id for m in cubes] == [0, 1]
-    assert {m.ns for m in cubes} == {'boxes'} and {m.ns for m in edges} == {'edges'}
+    assert {m.ns for m in cubes} == {'object0/boxes'}
+    assert {m.ns for m in edges} == {'object0/edges'}
     assert all(len(m.points) == 24 for m in edges)
     for message in (*boxes.markers, grasps):
         assert message.header.frame_id == 'camera_optical_frame'

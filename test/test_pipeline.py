@@ -168,7 +168,14 @@ def test_both_voxel_backends_give_the_same_boxes():
     ):
         assert mine.volume == pytest.approx(other.volume, rel=1e-6)
         np.testing.assert_allclose(mine.center, other.center, atol=1e-6)
-    assert set(ours.timings_ms) == {'decode', 'filter', 'decompose', 'grasps'}
+    assert set(ours.timings_ms) == {
+        'decode',
+        'filter',
+        'objects',
+        'completion',
+        'decompose',
+        'grasps',
+    }
 
 
 def test_voxel_backend_setting_is_validated():

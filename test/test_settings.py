@@ -10,6 +10,7 @@ from mvbb_ros import decompose, grasp_hypotheses, PipelineSettings, process_poin
 from mvbb_ros.cli.main import build_parser, main
 from mvbb_ros.cli.options import settings_from_args
 from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.geometry.completion import COMPLETIONS
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.split import SPLIT_MEASURES
@@ -24,6 +25,7 @@ from mvbb_ros.pipeline.settings import (
     SPECS,
     STAGE_DEFAULT,
     STAGES,
+    ViewSettings,
     VOXEL_BACKENDS,
 )
 import numpy as np
@@ -51,6 +53,7 @@ def test_every_spec_sets_a_typed_field_of_a_stage():
     assert len(names) == len(set(names))
     assert list(STAGES.values()) == [
         FilterSettings,
+        ViewSettings,
         DecompositionSettings,
         GraspSettings,
         NodeSettings,
@@ -64,9 +67,12 @@ def test_choice_lists_are_defined_once_with_their_stage():
     assert SPEC_BY_NAME['grasp_strategy'].choices is STRATEGIES
     assert SPEC_BY_NAME['approach_axis'].choices is APPROACH_AXES
     assert SPEC_BY_NAME['voxel_backend'].choices is VOXEL_BACKENDS
+    assert SPEC_BY_NAME['shape_completion'].choices is COMPLETIONS
     for spec in SPECS:
         if spec.choices:
-            assert spec.default == spec.choices[0], f'{spec.name}: the first choice is the default'
+            assert spec.stage_default == spec.choices[0], (
+                f"{spec.name}: the first choice is the stage's default"
+            )
 
 
 def test_node_defaults_come_from_specs_and_the_paper_preset_from_the_stages():
@@ -94,8 +100,8 @@ def test_parameter_values_round_trip(preset):
 def test_unset_values_map_to_none_in_the_stages():
     settings = PipelineSettings().updated({'max_boxes': 0, 'up_direction': [0, 0, 2.0]})
     assert settings.decomposition.max_boxes is None
-    assert settings.grasps.up == (0.0, 0.0, 2.0)
-    assert settings.updated({'up_direction': []}).grasps.up is None
+    assert settings.view.up == (0.0, 0.0, 2.0)
+    assert settings.updated({'up_direction': []}).view.up is None
     assert settings.value('max_boxes') == 0 and settings.value('up_direction') == [0.0, 0.0, 2.0]
     with pytest.raises(ValueError, match='max_boxes must be in'):
         settings.updated({'max_boxes': -1})
@@ -114,7 +120,8 @@ def test_the_paper_preset_runs_the_papers_algorithm(mug):
     paper = process_points(mug, PipelineSettings.paper())
     decomposition = decompose(mug)
     grasps = grasp_hypotheses(decomposition)
-    assert paper.decomposition.settings == decomposition.settings
+    assert len(paper.objects) == 1 and paper.objects[0].shape.method == 'none'
+    assert paper.objects[0].decomposition.settings == decomposition.settings
     assert [box.volume for box in paper.leaves] == [box.volume for box in decomposition.leaves]
     assert [g.position.tolist() for g in paper.grasps] == [g.position.tolist() for g in grasps]
     node = process_points(mug)
@@ -134,7 +141,7 @@ def test_flags_are_the_parameter_names_in_both_spellings(capsys):
     assert dashed.decomposition.gain_threshold == 0.9 and dashed.grasps.strategy == 'smallest'
     assert settings_from_args(_args('-t', '0.9')).decomposition.gain_threshold == 0.9
     vectors = settings_from_args(_args('--up-direction', '0', '0', '1', '--max-boxes', '0'))
-    assert vectors.grasps.up == (0.0, 0.0, 1.0) and vectors.decomposition.max_boxes is None
+    assert vectors.view.up == (0.0, 0.0, 1.0) and vectors.decomposition.max_boxes is None
     assert settings_from_args(_args()) == PipelineSettings()
     with pytest.raises(SystemExit):
         main(['decompose', '--help'])
@@ -179,7 +186,7 @@ def test_decompose_with_the_paper_preset_writes_the_papers_boxes(tmp_path, mug):
     assert main(['decompose', str(cloud), '--preset', 'paper', '--json', str(out)]) == 0
     document = json.loads(out.read_text())
     decomposition = decompose(mug.astype(np.float64))
-    volumes = [document['nodes'][index]['box']['volume'] for index in document['leaves']]
+    volumes = [leaf['box']['volume'] for leaf in document['leaves']]
     assert volumes == [box.volume for box in decomposition.leaves]
     assert len(document['grasps']) == len(grasp_hypotheses(decomposition))
     assert document['parameters'] == PipelineSettings.paper().parameters()

@@ -33,6 +33,7 @@ from mvbb_ros.evaluation.gripper import (
 from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
 from mvbb_ros.pipeline.settings import defaults, format_assignment, PipelineSettings
+import numpy as np
 from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:  # the pipeline loads Open3D: imported when a command runs (see below)
@@ -215,33 +216,34 @@ def _format_vector(values: Iterable[float]) -> str:
     return ' '.join(f'{value:9.4f}' for value in values)
 
 
-def print_report(result: PipelineResult, seconds: float) -> None:
-    """Print the counts, the leaf boxes and the best grasps as plain-text tables."""
-    decomposition, grasps, counts = result.decomposition, result.grasps, result.counts
-    assert decomposition is not None
-    leaves = decomposition.leaves
-    leaf_counts = [len(indices) for indices in decomposition.leaf_point_indices]
+def print_report(result: PipelineResult, seconds: float, settings: PipelineSettings) -> None:
+    """Print the counts, the leaf boxes (by object) and the best grasps as plain-text tables."""
+    grasps, counts, leaves = result.grasps, result.counts, result.leaves
+    dropped = sum(len(item.decomposition.dropped_point_indices) for item in result.objects)
     print(
-        f'{counts.finite} points, {counts.inliers} after filtering -> {len(leaves)} boxes '
-        f'(t = {decomposition.settings.gain_threshold:g}, '
-        f'{len(decomposition.dropped_point_indices)} points dropped) in {seconds * 1e3:.1f} ms'
+        f'{counts.finite} points, {counts.inliers} after filtering -> '
+        f'{len(result.objects)} object(s), {len(leaves)} boxes '
+        f'(t = {settings.decomposition.gain_threshold:g}, '
+        f'completion {settings.view.completion}, {dropped} points dropped) '
+        f'in {seconds * 1e3:.1f} ms'
     )
-    root_volume = decomposition.root_volume
-    ratio = decomposition.leaf_volume / root_volume if root_volume > 0 else float('nan')
-    print(f'leaf volume / root volume = {ratio:.3f}')
-    print(f'{"box":>3} {"points":>7}  {"centre":^29}  {"extents":^29}  {"volume":>11}')
-    for index, (box, count) in enumerate(zip(leaves, leaf_counts, strict=True)):
+    print(f'{"obj":>3} {"box":>3} {"points":>7}  {"centre":^29}  {"extents":^29}  {"volume":>11}')
+    rows = zip(leaves, result.leaf_object_indices, result.leaf_observed_counts, strict=True)
+    for index, (box, obj, count) in enumerate(rows):
         print(
-            f'{index:3d} {count:7d}  {_format_vector(box.center)}  '
+            f'{obj:3d} {index:3d} {count:7d}  {_format_vector(box.center)}  '
             f'{_format_vector(box.extents)}  {box.volume:11.4g}'
         )
     print(f'{len(grasps)} grasp hypotheses (best first)')
     if grasps:
-        print(f'{"rank":>4} {"box":>3} {"face":>4}  {"position":^29}  {"width":>8} {"score":>6}')
+        print(
+            f'{"rank":>4} {"obj":>3} {"box":>3} {"face":>4}  {"position":^29}  {"width":>8} '
+            f'{"score":>6}'
+        )
     for rank, grasp in enumerate(grasps[:10]):
         print(
-            f'{rank:4d} {grasp.box_index:3d} {grasp.face:4d}  {_format_vector(grasp.position)}  '
-            f'{grasp.width:8.4f} {grasp.score:6.3f}'
+            f'{rank:4d} {grasp.object_index:3d} {grasp.box_index:3d} {grasp.face:4d}  '
+            f'{_format_vector(grasp.position)}  {grasp.width:8.4f} {grasp.score:6.3f}'
         )
     if len(grasps) > 10:
         print(f'... {len(grasps) - 10} more')
@@ -251,16 +253,44 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
     """
     Return the JSON document of one cloud's result.
 
-    The decomposition's own dict (:meth:`~mvbb_ros.geometry.decomposition.Decomposition.
-    to_dict`: the tree, the leaves by node index, each box), the grasps, the filter counts and
-    every parameter in force.
+    ``objects``: per object its decomposition's own dict
+    (:meth:`~mvbb_ros.geometry.decomposition.Decomposition.to_dict`: the tree, the leaves by
+    node index, each box) with its index, observed point count and completion; ``leaves``: every
+    leaf box in the order grasps number them (``box_index``), with its object, node and observed
+    point count; then the grasps, the filter counts and every parameter in force.
     """
-    assert result.decomposition is not None
-    document = result.decomposition.to_dict()
-    document['grasps'] = [grasp.to_dict() for grasp in result.grasps]
-    document['filter_counts'] = asdict(result.counts)
-    document['parameters'] = settings.parameters()
-    return document
+    objects = []
+    leaves = []
+    for item in result.objects:
+        entry = item.decomposition.to_dict()
+        plane = item.shape.plane
+        entry.update(
+            index=item.index,
+            observed_points=item.shape.observed,
+            completion=item.shape.method,
+            mirror_plane=None
+            if plane is None
+            else {'normal': plane.normal.tolist(), 'point': plane.point.tolist()},
+        )
+        objects.append(entry)
+        for node, count in zip(
+            item.decomposition.leaf_nodes, item.leaf_observed_counts, strict=True
+        ):
+            leaves.append(
+                {
+                    'object': item.index,
+                    'node': node.index,
+                    'observed_points': count,
+                    'box': node.box.to_dict(),
+                }
+            )
+    return {
+        'objects': objects,
+        'leaves': leaves,
+        'grasps': [grasp.to_dict() for grasp in result.grasps],
+        'filter_counts': asdict(result.counts),
+        'parameters': settings.parameters(),
+    }
 
 
 def decompose_and_report(
@@ -282,9 +312,9 @@ def decompose_and_report(
     start = time.perf_counter()
     result = process_points(points, settings)
     seconds = time.perf_counter() - start
-    if result.decomposition is None:
+    if not result.objects:
         raise ValueError(result.warning or 'no decomposition')
-    print_report(result, seconds)
+    print_report(result, seconds, settings)
     if json_path is not None:
         with atomic_open(json_path) as handle:
             json.dump(result_document(result, settings), handle, indent=2)
@@ -293,10 +323,10 @@ def decompose_and_report(
         # Deferred: matplotlib, only when a picture is asked for.
         from mvbb_ros.cli.render import render_boxes
 
-        decomposition = result.decomposition
-        render_boxes(
-            png_path, decomposition.points, decomposition.leaves, grasps=result.grasps, title=title
+        observed = np.concatenate(
+            [item.shape.points[: item.shape.observed] for item in result.objects]
         )
+        render_boxes(png_path, observed, result.leaves, grasps=result.grasps, title=title)
         print(f'wrote {png_path}')
 
 

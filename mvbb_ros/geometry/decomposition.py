@@ -42,7 +42,7 @@ DEFAULT_MIN_POINTS = 10
 Order = Literal['volume', 'gain', 'breadth', 'depth']
 ORDERS: tuple[Order, ...] = get_args(Order)
 #: Why a node was not split (:attr:`DecompositionNode.stop_reason`).
-StopReason = Literal['gain', 'no_cut', 'noise', 'max_boxes', 'dropped']
+StopReason = Literal['gain', 'no_cut', 'noise', 'max_boxes', 'dropped', 'thin']
 STOP_REASONS: tuple[StopReason, ...] = get_args(StopReason)
 
 
@@ -68,6 +68,7 @@ class DecompositionSettings:
     seed: int = 0
     grid_cells: int = splitting.DEFAULT_GRID_CELLS
     order: Order = 'volume'
+    min_thickness: float = 0.0
 
     def __post_init__(self) -> None:
         threshold = self.gain_threshold
@@ -89,6 +90,12 @@ class DecompositionSettings:
         object.__setattr__(self, 'grid_cells', _integer('grid_cells', self.grid_cells, 2))
         if self.order not in ORDERS:
             raise ValueError(f'order must be one of {ORDERS}, got {self.order!r}')
+        thickness = self.min_thickness
+        if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.number)):
+            raise ValueError(f'min_thickness must be a number >= 0, got {thickness!r}')
+        if not 0.0 <= float(thickness) < math.inf:
+            raise ValueError(f'min_thickness must be finite and >= 0, got {thickness!r}')
+        object.__setattr__(self, 'min_thickness', float(thickness))
 
 
 @dataclass(frozen=True, eq=False)
@@ -356,7 +363,12 @@ def _best_split(
 ) -> _Split | None:
     """Find the split of a node: the paper's theta*, or the best of k real fits (rescoring)."""
     local = draft.box.to_local(np.take(points, draft.point_indices, axis=0))
-    scores = splitting.score_cuts(local, cells=settings.grid_cells, measure=settings.split_measure)
+    scores = splitting.score_cuts(
+        local,
+        cells=settings.grid_cells,
+        measure=settings.split_measure,
+        min_thickness=settings.min_thickness,
+    )
     cuts = splitting.candidate_cuts(scores, draft.box, limit=max(1, settings.rescore_cuts))
     best: _Split | None = None
     for cut in cuts:
@@ -401,6 +413,7 @@ def decompose(
     seed: int = 0,
     grid_cells: int = splitting.DEFAULT_GRID_CELLS,
     order: Order = 'volume',
+    min_thickness: float = 0.0,
 ) -> Decomposition:
     """
     Decompose a point cloud into minimum-volume bounding boxes by fit-and-split.
@@ -460,6 +473,12 @@ def decompose(
         :data:`mvbb_ros.geometry.split.DEFAULT_GRID_CELLS`.
     :param order: ``'volume'`` (default), ``'gain'``, ``'breadth'`` or ``'depth'``; see Processing
         order.
+    :param min_thickness: a floor on the thickness of the boxes a split may make, in the
+        points' units; 0 (the paper) has none. Cuts that leave a part thinner than it along the
+        cut axis are not candidates, and a split whose fitted child box would still be thinner
+        than it is refused (``stop_reason='thin'``). On single sensor views the paper's gain
+        peels plates of sensor thickness off a surface; the floor keeps boxes at least as thick
+        as the sensor can resolve (``docs/single_views.md``).
     :return: the decomposition: the tree (``nodes``, ``root``), the leaves in node order with
         their point indices, the dropped points and the settings.
     :raises ValueError: for an empty point array, a shape other than (N, 3), non-finite
@@ -474,6 +493,7 @@ def decompose(
         seed=seed,
         grid_cells=grid_cells,
         order=order,
+        min_thickness=min_thickness,
     )
     pts = _validated_points(points)
     root = _Draft(
@@ -529,6 +549,12 @@ def decompose(
             continue
         if not any(kept):
             draft.stop_reason = 'noise'
+            continue
+        if any(
+            keep and float(np.min(box.extents)) < settings.min_thickness
+            for keep, box in zip(kept, split.boxes, strict=True)
+        ):
+            draft.stop_reason = 'thin'
             continue
         leaves_after = len(leaf_volumes) - 1 + sum(kept)
         if settings.max_boxes is not None and leaves_after > settings.max_boxes:

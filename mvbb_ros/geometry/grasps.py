@@ -161,6 +161,8 @@ class GraspSettings:
 
     The defaults are the library's (the Franka Hand's opening, a 5 cm standoff, no support
     filter); :func:`grasp_hypotheses` documents each field. Arrays are kept as tuples of floats.
+    What the grasps know of the view (the up direction, the sensor position, each box's object)
+    are arguments of their own: the pipeline takes them from its view stage.
 
     :raises ValueError: when a setting is out of range, with the setting's name and value.
     """
@@ -169,13 +171,11 @@ class GraspSettings:
     standoff: float = DEFAULT_STANDOFF
     approach_axis: ApproachAxis = 'z'
     strategy: Strategy = 'largest'
-    up: tuple[float, ...] | None = None
     support_plane: tuple[float, ...] | None = None
     support_clearance: float = DEFAULT_SUPPORT_CLEARANCE
     max_approach_elevation_deg: float = DEFAULT_MAX_APPROACH_ELEVATION_DEG
     contact_tolerance: float | None = None
     contact_fraction: float = DEFAULT_CONTACT_FRACTION
-    sensor_origin: tuple[float, ...] = (0.0, 0.0, 0.0)
     max_grasps: int = 0
 
     def __post_init__(self) -> None:
@@ -202,15 +202,9 @@ class GraspSettings:
             raise ValueError(f'max_grasps must be an integer >= 0, got {self.max_grasps!r}')
         if self.max_grasps < 0:
             raise ValueError(f'max_grasps must be an integer >= 0, got {self.max_grasps!r}')
-        for name, size in (('up', 3), ('support_plane', 4)):
-            value = getattr(self, name)
-            if value is not None:
-                _unit(value, name, size=size)  # finite, of the right size, not zero
-                object.__setattr__(self, name, _floats(value))
-        origin = _floats(self.sensor_origin)
-        if len(origin) != 3:
-            raise ValueError(f'sensor_origin must be 3 numbers, got {self.sensor_origin!r}')
-        object.__setattr__(self, 'sensor_origin', origin)
+        if self.support_plane is not None:
+            _unit(self.support_plane, 'support_plane', size=4)  # finite, 4 numbers, not zero
+            object.__setattr__(self, 'support_plane', _floats(self.support_plane))
         object.__setattr__(self, 'max_grasps', int(self.max_grasps))
 
 
@@ -393,8 +387,34 @@ def _normalised(keys: FloatArray) -> FloatArray:
 # Public API -------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class _View:
+    """What the grasps need to know of the sensor view: up, the sensor, the boxes' objects."""
+
+    up: FloatArray | None
+    sensor_origin: FloatArray
+    object_indices: tuple[int, ...] | None
+
+    @classmethod
+    def of(
+        cls, up: ArrayLike | None, sensor_origin: ArrayLike, object_indices: Sequence[int] | None
+    ) -> _View:
+        """Check and convert the view arguments of :func:`grasp_hypotheses`."""
+        origin = np.asarray(sensor_origin, dtype=np.float64).reshape(-1)
+        if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+            raise ValueError(f'sensor_origin must be 3 finite numbers, got {sensor_origin!r}')
+        indices = None if object_indices is None else tuple(int(i) for i in object_indices)
+        return cls(None if up is None else _unit(up, 'up'), origin, indices)
+
+    def object_index(self, box: int) -> int:
+        """Return the object of box `box` (0 when no objects were given)."""
+        return 0 if self.object_indices is None else self.object_indices[box]
+
+
 def _hypotheses(
-    source: Decomposition | Sequence[Box], settings: GraspSettings
+    source: Decomposition | Sequence[Box],
+    settings: GraspSettings,
+    view: _View,
 ) -> tuple[list[Grasp], GraspStats]:
     """Return the ranked hypotheses (all of them, before ``max_grasps``) and the filter counts."""
     plane = (
@@ -402,13 +422,17 @@ def _hypotheses(
         if settings.support_plane is None
         else _unit(settings.support_plane, 'support_plane', size=4)
     )
-    up_direction = None if settings.up is None else _unit(settings.up, 'up')
+    up_direction = view.up
     if up_direction is None and plane is not None:
         up_direction = plane[:3]
 
     boxes, points = _leaf_boxes(source)
     if not boxes:
         return [], GraspStats(0, 0, 0, 0, 0, 0, 0, 0)
+    if view.object_indices is not None and len(view.object_indices) != len(boxes):
+        raise ValueError(
+            f'object_indices has {len(view.object_indices)} entries for {len(boxes)} boxes'
+        )
 
     centers = np.array([box.center for box in boxes])
     rotations = np.array([box.rotation for box in boxes])
@@ -481,7 +505,7 @@ def _hypotheses(
         quaternions = Rotation.from_matrix(matrices).as_quat()
         quaternions[quaternions[:, 3] < 0.0] *= -1.0
 
-    keys = _tie_rounded(_strategy_keys(settings.strategy, boxes, points, settings.sensor_origin))
+    keys = _tie_rounded(_strategy_keys(settings.strategy, boxes, points, view.sensor_origin))
     scores = _normalised(keys)
     # Stable sort on the box key keeps (box, face, roll) order among ties.
     order = np.argsort(-keys[selected[:, 0]], kind='stable') if len(selected) else selected[:, 0]
@@ -500,6 +524,7 @@ def _hypotheses(
                 face=face_i,
                 roll_deg=ROLLS_DEG[roll_i],
                 score=float(scores[box_i]),
+                object_index=view.object_index(box_i),
             )
         )
     stats = GraspStats(
@@ -530,6 +555,7 @@ def grasp_hypotheses(
     contact_fraction: float = DEFAULT_CONTACT_FRACTION,
     sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
     max_grasps: int = 0,
+    object_indices: Sequence[int] | None = None,
 ) -> list[Grasp]:
     """
     Return face-approach grasp hypotheses on leaf boxes, filtered and ranked (best first).
@@ -564,6 +590,8 @@ def grasp_hypotheses(
         (default 0.1, of the smaller middle extent of the two boxes).
     :param sensor_origin: sensor position (3,) for ``'nearest'`` (default the frame origin).
     :param max_grasps: return at most this many, best first (default 0: all).
+    :param object_indices: the object each box belongs to (one per box), copied to
+        :attr:`Grasp.object_index`; None: all 0.
     :return: the surviving hypotheses sorted best first.
     :raises ValueError: on an unknown strategy or approach axis, or an invalid parameter.
     :raises TypeError: when the input is neither a decomposition nor a sequence of boxes.
@@ -573,29 +601,35 @@ def grasp_hypotheses(
         standoff=standoff,
         approach_axis=approach_axis,
         strategy=strategy,
-        up=None if up is None else _floats(up),
         support_plane=None if support_plane is None else _floats(support_plane),
         support_clearance=support_clearance,
         max_approach_elevation_deg=max_approach_elevation_deg,
         contact_tolerance=contact_tolerance,
         contact_fraction=contact_fraction,
-        sensor_origin=_floats(sensor_origin),
         max_grasps=max_grasps,
     )
-    grasps, _ = _hypotheses(source, settings)
+    grasps, _ = _hypotheses(source, settings, _View.of(up, sensor_origin, object_indices))
     return grasps[: settings.max_grasps] if settings.max_grasps > 0 else grasps
 
 
-def grasp_filter_counts(source: Decomposition | Sequence[Box], **options: Any) -> GraspStats:
+def grasp_filter_counts(
+    source: Decomposition | Sequence[Box],
+    *,
+    up: ArrayLike | None = None,
+    sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
+    **options: Any,
+) -> GraspStats:
     """
     Return how many hypotheses of :func:`grasp_hypotheses` survive each filter, in order.
 
     :param source: as for :func:`grasp_hypotheses`.
-    :param options: the keyword arguments of :func:`grasp_hypotheses` (the fields of
-        :class:`GraspSettings`); ``max_grasps`` is no filter and does not change the counts.
+    :param up: as for :func:`grasp_hypotheses`.
+    :param sensor_origin: as for :func:`grasp_hypotheses`.
+    :param options: the fields of :class:`GraspSettings`; ``max_grasps`` is no filter and does
+        not change the counts.
     :return: the counts: faces and hypotheses before any filter, after occlusion, after the
         width filter and after the support filter.
     :raises ValueError: for an invalid option.
     :raises TypeError: when the input is neither a decomposition nor a sequence of boxes.
     """
-    return _hypotheses(source, GraspSettings(**options))[1]
+    return _hypotheses(source, GraspSettings(**options), _View.of(up, sensor_origin, None))[1]

@@ -184,7 +184,11 @@ def grid_cell_index(local: ArrayLike, cells: int) -> IndexArray:
 
 
 def score_cuts(
-    local: ArrayLike, *, cells: int = DEFAULT_GRID_CELLS, measure: str = 'area'
+    local: ArrayLike,
+    *,
+    cells: int = DEFAULT_GRID_CELLS,
+    measure: str = 'area',
+    min_thickness: float = 0.0,
 ) -> CutScores:
     """
     Compute the split measure theta of every grid cut of points given in their box's frame.
@@ -192,6 +196,8 @@ def score_cuts(
     :param local: (n, 3) points in the box frame (column k = coordinate along box axis k).
     :param cells: grid cells per axis (>= 2); the cuts are the cells - 1 inner cell boundaries.
     :param measure: ``'area'`` (paper, six families) or ``'volume'`` (three families).
+    :param min_thickness: cuts leaving a part thinner than this along the cut axis (in the
+        points' units) are not candidates; 0 (the paper) allows every cut.
     :return: the scores; rows of ``theta`` follow the paper's family order for ``'area'`` and
         the axes a, b, c for ``'volume'``.
     :raises ValueError: for no points, fewer than 2 cells or an unknown measure.
@@ -230,6 +236,11 @@ def score_cuts(
     upper_max = np.maximum.accumulate(cell_max[:, :, ::-1], axis=2)[:, :, ::-1][:, :, 1:]
     lower_count = np.cumsum(counts, axis=1)[:, :-1]
     valid = (lower_count > 0) & (lower_count < count)
+    if min_thickness > 0.0:
+        axes = np.arange(3)
+        with np.errstate(invalid='ignore'):
+            valid &= lower_max[axes, axes] - lower_min[axes, axes] >= min_thickness
+            valid &= upper_max[axes, axes] - upper_min[axes, axes] >= min_thickness
     with np.errstate(invalid='ignore'):
         lower_extent = np.where(valid[:, None, :], lower_max - lower_min, 0.0)
         upper_extent = np.where(valid[:, None, :], upper_max - upper_min, 0.0)

@@ -1,5 +1,7 @@
 """
-The per-cloud pipeline: decode, filter, decompose, grasp (``docs/architecture.md``).
+The per-cloud pipeline: decode, filter, objects, hidden side, decompose, grasp.
+
+``docs/architecture.md`` follows one cloud through it.
 
 One function, :func:`process_points` (behind :func:`process_cloud` for messages), serves the
 node, `mvbb bag process` and `mvbb decompose`, with one :class:`PipelineSettings`, so a cloud
@@ -13,45 +15,120 @@ from dataclasses import asdict, dataclass, field
 import time
 from typing import Any
 
+from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.completion import complete_view, CompletedView
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
+from mvbb_ros.geometry.objects import separate_objects
 from mvbb_ros.pipeline.decode import CloudFormatError, read_points
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectResult:
+    """
+    One object of a cloud: its observed points, its estimated shape and its decomposition.
+
+    :ivar index: the object's number in the cloud (0 is the largest).
+    :ivar point_indices: the object's points among the filtered points (sorted).
+    :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
+        points are ``shape.points``, observed first.
+    :ivar decomposition: the fit-and-split tree of ``shape.points``.
+    """
+
+    index: int
+    point_indices: IndexArray
+    shape: CompletedView
+    decomposition: Decomposition
+
+    @property
+    def leaf_observed_counts(self) -> list[int]:
+        """Return how many observed (not estimated) points each leaf holds."""
+        observed = self.shape.observed
+        return [
+            int(np.count_nonzero(indices < observed))
+            for indices in self.decomposition.leaf_point_indices
+        ]
 
 
 @dataclass
 class PipelineResult:
     """
-    What one cloud produced.
+    What one cloud produced: its objects, each decomposed, and the grasps on all of them.
 
     `warning` says why the result is empty when the input could not be used (the node logs it,
     throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
+    Boxes are numbered across objects: :attr:`leaves` lists every object's leaves in object
+    order, and each grasp's ``box_index`` indexes it.
     """
 
     counts: FilterCounts
-    decomposition: Decomposition | None = None
+    objects: list[ObjectResult] = field(default_factory=list)
     grasps: list[Grasp] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
     warning: str | None = None
 
     @property
     def leaves(self) -> list[Box]:
-        """Return the leaf boxes (empty when there is no decomposition)."""
-        return [] if self.decomposition is None else list(self.decomposition.leaves)
+        """Return every object's leaf boxes, in object order."""
+        return [leaf for item in self.objects for leaf in item.decomposition.leaves]
 
     @property
     def leaf_object_indices(self) -> list[int]:
-        """Return the object index of each of :attr:`leaves` (one object: all 0)."""
-        return [0] * len(self.leaves)
+        """Return the object index of each of :attr:`leaves`."""
+        return [item.index for item in self.objects for _ in item.decomposition.leaves]
+
+    @property
+    def leaf_observed_counts(self) -> list[int]:
+        """Return how many observed points each of :attr:`leaves` holds."""
+        return [count for item in self.objects for count in item.leaf_observed_counts]
+
+    @property
+    def inner_boxes(self) -> list[Box]:
+        """Return every object's split (inner) boxes of the hierarchy, in object order."""
+        return [
+            node.box for item in self.objects for node in item.decomposition.nodes if node.children
+        ]
+
+    @property
+    def inner_object_indices(self) -> list[int]:
+        """Return the object index of each of :attr:`inner_boxes`."""
+        return [
+            item.index
+            for item in self.objects
+            for node in item.decomposition.nodes
+            if node.children
+        ]
 
     @property
     def total_ms(self) -> float:
         """Return the total processing time in milliseconds."""
         return float(sum(self.timings_ms.values()))
+
+
+#: The cluster tolerance is at least this many point spacings (sparse clouds stay whole).
+CLUSTER_SPACINGS = 3.0
+
+
+def point_spacing(points: FloatArray, voxel_size: float) -> float:
+    """
+    Return the distance between neighbouring points, metres.
+
+    The median nearest-neighbour distance of an evenly spread sample, and at least the voxel
+    size.
+    """
+    sample = points[:: max(1, len(points) // 256)]
+    distances, _ = cKDTree(points).query(sample, k=2)
+    spacing = max(float(np.median(distances[:, 1])), voxel_size)
+    if spacing > 0.0:
+        return spacing
+    extent = float(np.max(np.ptp(points, axis=0)))
+    return extent / 100.0 if extent > 0.0 else 1.0
 
 
 def _empty_counts(count: int = 0) -> FilterCounts:
@@ -116,16 +193,51 @@ def process_points(
         )
         return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
 
+    view = settings.view
     start = time.perf_counter()
-    decomposition = decompose(filtered, **asdict(settings.decomposition))
-    timings['decompose'] = (time.perf_counter() - start) * 1e3
+    spacing = point_spacing(filtered, settings.filtering.voxel_size)
+    # A tolerance below the point spacing would cut every object into single points.
+    tolerance = max(view.cluster_tolerance, CLUSTER_SPACINGS * spacing)
+    groups = separate_objects(
+        filtered,
+        tolerance if view.cluster_tolerance > 0.0 else 0.0,
+        viewpoint=view.viewpoint,
+        spacing=spacing,
+        min_points=min_points,
+    )
+    timings['objects'] = (time.perf_counter() - start) * 1e3
+    if not groups:
+        warning = f'no object of at least min_points = {min_points} points in the cloud'
+        return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
+
+    objects = []
+    timings['completion'] = timings['decompose'] = 0.0
+    for index, members in enumerate(groups):
+        start = time.perf_counter()
+        shape = complete_view(
+            filtered[members],
+            method=view.completion,
+            viewpoint=view.viewpoint,
+            up=view.up,
+            spacing=spacing,
+        )
+        timings['completion'] += (time.perf_counter() - start) * 1e3
+        start = time.perf_counter()
+        decomposition = decompose(shape.points, **asdict(settings.decomposition))
+        timings['decompose'] += (time.perf_counter() - start) * 1e3
+        objects.append(ObjectResult(index, members, shape, decomposition))
 
     start = time.perf_counter()
-    grasps = grasp_hypotheses(decomposition, **asdict(settings.grasps))
-    timings['grasps'] = (time.perf_counter() - start) * 1e3
-    return PipelineResult(
-        counts=counts, decomposition=decomposition, grasps=grasps, timings_ms=timings
+    result = PipelineResult(counts=counts, objects=objects, timings_ms=timings)
+    result.grasps = grasp_hypotheses(
+        result.leaves,
+        up=view.up,
+        sensor_origin=view.viewpoint,
+        object_indices=result.leaf_object_indices,
+        **asdict(settings.grasps),
     )
+    timings['grasps'] = (time.perf_counter() - start) * 1e3
+    return result
 
 
 def decode_cloud(cloud: Any) -> NDArray[np.floating]:

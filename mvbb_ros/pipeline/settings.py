@@ -37,6 +37,7 @@ import textwrap
 import typing
 from typing import Any, get_args, Literal
 
+from mvbb_ros.geometry.completion import Completion, COMPLETIONS
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.split import SPLIT_MEASURES
@@ -87,6 +88,31 @@ INPUT_RELIABILITIES: tuple[InputReliability, ...] = get_args(InputReliability)
 
 
 @dataclass(frozen=True)
+class ViewSettings:
+    """
+    What is known of the sensor view, and how the view becomes objects' shapes.
+
+    The defaults are the paper's: the frame's origin as the sensor, no up direction, the whole
+    cloud one object, the observed points alone. The node's defaults (``config/decomposer.yaml``)
+    separate objects and complete their hidden side (``docs/single_views.md``).
+
+    :ivar viewpoint: (3,) sensor position in the cloud's frame, metres (the frame's origin for
+        camera and laser frames; set it for clouds transformed into another frame).
+    :ivar up: up direction in the cloud's frame, or None when unknown: vertical mirror planes,
+        a support below the object, and no grasps from below.
+    :ivar cluster_tolerance: points closer than this (metres) are one object; 0 keeps the
+        whole cloud as one object (:func:`~mvbb_ros.geometry.objects.separate_objects`).
+    :ivar completion: how each object's hidden side is estimated
+        (:func:`~mvbb_ros.geometry.completion.complete_view`).
+    """
+
+    viewpoint: tuple[float, ...] = (0.0, 0.0, 0.0)
+    up: tuple[float, ...] | None = None
+    cluster_tolerance: float = 0.0
+    completion: Completion = 'none'
+
+
+@dataclass(frozen=True)
 class NodeSettings:
     """
     The settings of the node itself, beyond the pipeline's stages.
@@ -115,7 +141,8 @@ class SettingSpec:
     :ivar description: one or two sentences for ``ros2 param describe``, the YAML and ``--help``.
     :ivar value_range: inclusive (low, high) for numbers.
     :ivar choices: the accepted strings (a choice list defined once, next to its stage).
-    :ivar vector_length: the length of a vector; an empty vector turns the feature off.
+    :ivar vector_length: the length of a vector; an empty vector turns the feature off where
+        the stage's default is empty or `unset` is ``()``, and is refused otherwise.
     :ivar read_only: only settable at start-up (a ROS read-only parameter).
     :ivar field: the stage field, when its name differs from `name`.
     :ivar node_default: the node's default, when it differs from the stage's own.
@@ -277,6 +304,55 @@ SPECS: tuple[SettingSpec, ...] = (
         'Upper corner (x, y, z) of the crop box in metres; empty turns it off.',
         vector_length=3,
     ),
+    # The sensor view: objects and their hidden side (docs/single_views.md).
+    SettingSpec(
+        'viewpoint',
+        ViewSettings,
+        list,
+        'Sensor position (x, y, z) in the cloud frame, metres: the origin for camera and '
+        'laser frames; set it when the cloud was transformed into another frame.',
+        vector_length=3,
+    ),
+    SettingSpec(
+        'up_direction',
+        ViewSettings,
+        list,
+        'Up vector (x, y, z) in the cloud frame: vertical mirror planes, a support under '
+        'the object, no approaches from below. Empty: unknown.',
+        vector_length=3,
+        field='up',
+        unset=(),
+    ),
+    SettingSpec(
+        'cluster_tolerance',
+        ViewSettings,
+        float,
+        'Points closer than this (metres) are one object; each object is decomposed on its '
+        'own. 0 treats the whole cloud as one object.',
+        (0.0, 10.0),
+        node_default=0.02,
+    ),
+    SettingSpec(
+        'shape_completion',
+        ViewSettings,
+        str,
+        "How each object's hidden side is estimated: 'mirror' (symmetric about the plane "
+        "the view contradicts least), 'extrude' (away from the sensor to the box's far side) "
+        "or 'none' (the observed points only, the paper).",
+        choices=COMPLETIONS,
+        field='completion',
+        node_default='mirror',
+    ),
+    SettingSpec(
+        'min_box_thickness',
+        DecompositionSettings,
+        float,
+        'No split may leave a box thinner than this (metres): plates of sensor thickness '
+        'are not shapes. 0: no floor (the paper).',
+        (0.0, 10.0),
+        field='min_thickness',
+        node_default=0.01,
+    ),
     # Grasps (paper Section IV-B).
     SettingSpec(
         'gripper_max_width',
@@ -307,16 +383,6 @@ SPECS: tuple[SettingSpec, ...] = (
         'to the sensor.',
         choices=STRATEGIES,
         field='strategy',
-    ),
-    SettingSpec(
-        'up_direction',
-        GraspSettings,
-        list,
-        'Unit up vector (x, y, z) in the cloud frame; approaches from below are removed. '
-        'Empty: no support filter.',
-        vector_length=3,
-        field='up',
-        unset=(),
     ),
     SettingSpec(
         'max_grasps',
@@ -378,12 +444,14 @@ class PipelineSettings:
     Every setting of the pipeline, by stage; ``PipelineSettings()`` holds the node's defaults.
 
     :ivar filtering: crop, voxel grid and outlier removal.
+    :ivar view: the sensor's position and up, objects and their hidden side.
     :ivar decomposition: the fit-and-split decomposition (``decompose``'s arguments).
     :ivar grasps: the grasp hypotheses (``grasp_hypotheses``' arguments).
     :ivar node: what only the node uses (the tree topic, the input QoS).
     """
 
     filtering: FilterSettings = field(default_factory=lambda: _node_defaults(FilterSettings))
+    view: ViewSettings = field(default_factory=lambda: _node_defaults(ViewSettings))
     decomposition: DecompositionSettings = field(
         default_factory=lambda: _node_defaults(DecompositionSettings)
     )
@@ -395,6 +463,7 @@ class PipelineSettings:
         """Return the paper's algorithm: every stage at its own defaults (no filters, no cap)."""
         return cls(
             filtering=FilterSettings(),
+            view=ViewSettings(),
             decomposition=DecompositionSettings(),
             grasps=GraspSettings(),
             node=NodeSettings(),
@@ -523,8 +592,11 @@ def _check_vector(spec: SettingSpec, value: Any) -> str | None:
         values = list(value)
     except TypeError:
         return f'{spec.name} must be a list of {spec.vector_length} numbers, got {value!r}'
-    if len(values) not in (0, spec.vector_length) or not all(_is_number(v) for v in values):
-        return f'{spec.name} must be empty or {spec.vector_length} numbers, got {value!r}'
+    may_be_empty = spec.unset == () or spec.stage_default == []
+    lengths = (0, spec.vector_length) if may_be_empty else (spec.vector_length,)
+    if len(values) not in lengths or not all(_is_number(v) for v in values):
+        what = 'empty or ' if may_be_empty else ''
+        return f'{spec.name} must be {what}{spec.vector_length} numbers, got {value!r}'
     if not all(math.isfinite(v) for v in values):
         return f'{spec.name} must be finite, got {value!r}'
     if spec.name == 'up_direction' and values and math.hypot(*values) < 1e-9:

@@ -29,7 +29,6 @@ from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
 from mvbb_ros.geometry.box import Box, EDGES
-from mvbb_ros.geometry.decomposition import DecompositionNode
 from mvbb_ros.geometry.grasps import Grasp
 from mvbb_ros.pipeline.process import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
@@ -109,6 +108,7 @@ def box_markers(
     *,
     namespace_prefix: str = '',
     labels: Sequence[str] | None = None,
+    objects: Sequence[int] | None = None,
     fill_alpha: float = 0.35,
     line_width: float | None = None,
 ) -> MarkerArray:
@@ -119,6 +119,8 @@ def box_markers(
     :param header: the input cloud's header (frame and stamp).
     :param namespace_prefix: prefix of the three namespaces (e.g. ``tree_``).
     :param labels: one text per box; None labels boxes by index.
+    :param objects: the object index of each box; its markers go to the namespaces
+        ``object<k>/boxes``, ``object<k>/edges`` and ``object<k>/labels`` (None: all object 0).
     :param fill_alpha: opacity of the CUBE; 0 draws only edges and labels.
     :param line_width: edge width in metres; None uses 1% of the largest box edge.
     """
@@ -129,14 +131,15 @@ def box_markers(
     largest = max(float(np.max(box.extents)) for box in boxes)
     width = line_width if line_width is not None else max(0.01 * largest, MIN_MARKER_SCALE)
     for index, box in enumerate(boxes):
+        prefix = f'object{0 if objects is None else objects[index]}/{namespace_prefix}'
         if fill_alpha > 0.0:
-            cube = _marker(header, f'{namespace_prefix}boxes', index, Marker.CUBE)
+            cube = _marker(header, f'{prefix}boxes', index, Marker.CUBE)
             cube.pose = _pose(box.center, box.quaternion)
             scale = np.maximum(box.extents, MIN_MARKER_SCALE)
             cube.scale.x, cube.scale.y, cube.scale.z = (float(v) for v in scale)
             cube.color = _color(index, fill_alpha)
             array.markers.append(cube)
-        edges = _marker(header, f'{namespace_prefix}edges', index, Marker.LINE_LIST)
+        edges = _marker(header, f'{prefix}edges', index, Marker.LINE_LIST)
         # Eight Points per box, each listed by the (two or three) edges that meet there: the
         # same serialized message as 24 separate Points, for a third of the construction cost.
         corners = [Point(x=x, y=y, z=z) for x, y, z in box.corners().tolist()]
@@ -144,7 +147,7 @@ def box_markers(
         edges.scale.x = width
         edges.color = _color(index, 1.0)
         array.markers.append(edges)
-        label = _marker(header, f'{namespace_prefix}labels', index, Marker.TEXT_VIEW_FACING)
+        label = _marker(header, f'{prefix}labels', index, Marker.TEXT_VIEW_FACING)
         label.pose.position.x, label.pose.position.y, label.pose.position.z = (
             float(v) for v in box.center
         )
@@ -204,67 +207,46 @@ def grasp_candidates_cloud(grasps: Sequence[Grasp], header: Header) -> PointClou
     return _table_cloud(header, [grasp.position for grasp in grasps], floats, integers)
 
 
-def _object_of_nodes(
-    nodes: Sequence[DecompositionNode], leaf_objects: Mapping[int, int]
-) -> dict[int, int]:
-    """Return node index -> object index, an inner node taking the object of its leaves."""
-    parents = {node.index: node.parent for node in nodes}
-    objects: dict[int, int] = {}
-    for leaf, obj in leaf_objects.items():
-        index: int | None = leaf
-        while index is not None and index not in objects:
-            objects[index] = obj
-            index = parents[index]
-    return objects
-
-
 def box_list_cloud(result: PipelineResult | None, header: Header) -> PointCloud2:
     """
-    Return every box of the hierarchy as a PointCloud2: the leaves, then the inner boxes.
+    Return every box of every object's hierarchy as a PointCloud2: the leaves, then the inner.
 
     Row ``i < len(leaves)`` is leaf ``i`` (``box_index`` of the grasps, marker id on
     ``~/boxes``); the inner (split) boxes follow in the order of ``~/tree``. Fields: float32
-    x, y, z (the centre) and :data:`BOX_FLOAT_FIELDS`, int32 :data:`BOX_INDEX_FIELDS`.
+    x, y, z (the centre) and :data:`BOX_FLOAT_FIELDS`, int32 :data:`BOX_INDEX_FIELDS`;
+    ``point_count`` counts the points the sensor saw in the box (not the estimated hidden side),
+    ``parent`` is the row of the box it was split from (-1 for an object's root).
     """
-    decomposition = None if result is None else result.decomposition
-    leaves = [] if decomposition is None else decomposition.leaf_nodes
-    inner = [] if decomposition is None else _inner_nodes(decomposition.nodes)
+    objects = [] if result is None else result.objects
+    leaves = [(item, node) for item in objects for node in item.decomposition.leaf_nodes]
+    inner = [
+        (item, node) for item in objects for node in item.decomposition.nodes if node.children
+    ]
     rows = [*leaves, *inner]
-    row_of = {node.index: row for row, node in enumerate(rows)}
-    objects = (
-        {}
-        if result is None or decomposition is None
-        else _object_of_nodes(
-            decomposition.nodes,
-            {
-                leaf.index: obj
-                for leaf, obj in zip(leaves, result.leaf_object_indices, strict=True)
-            },
-        )
-    )
-    quaternions = [node.box.quaternion for node in rows]
+    row_of = {(item.index, node.index): row for row, (item, node) in enumerate(rows)}
+    quaternions = [node.box.quaternion for _, node in rows]
     floats: dict[str, Sequence[float]] = {
         name: [float(q[axis]) for q in quaternions]
         for axis, name in enumerate(BOX_FLOAT_FIELDS[:4])
     }
     floats.update(
         {
-            name: [float(node.box.extents[axis]) for node in rows]
+            name: [float(node.box.extents[axis]) for _, node in rows]
             for axis, name in enumerate(BOX_FLOAT_FIELDS[4:])
         }
     )
     integers = {
-        'point_count': [node.point_count for node in rows],
-        'object_index': [objects.get(node.index, 0) for node in rows],
-        'parent': [-1 if node.parent is None else row_of.get(node.parent, -1) for node in rows],
+        'point_count': [
+            int(np.count_nonzero(node.point_indices < item.shape.observed)) for item, node in rows
+        ],
+        'object_index': [item.index for item, _ in rows],
+        'parent': [
+            -1 if node.parent is None else row_of.get((item.index, node.parent), -1)
+            for item, node in rows
+        ],
         'leaf': [1] * len(leaves) + [0] * len(inner),
     }
-    return _table_cloud(header, [node.box.center for node in rows], floats, integers)
-
-
-def _inner_nodes(nodes: Sequence[DecompositionNode]) -> list[DecompositionNode]:
-    """Return the nodes that were split (the inner boxes of the hierarchy), in node order."""
-    return [node for node in nodes if node.children]
+    return _table_cloud(header, [node.box.center for _, node in rows], floats, integers)
 
 
 def diagnostic_status(
@@ -301,15 +283,21 @@ def output_messages(
     :return: ``boxes``, ``box_list``, ``grasps`` and ``grasp_candidates``, and ``tree`` when
         ``settings.node.publish_tree``, in publication order.
     """
-    decomposition = None if result is None else result.decomposition
-    leaves = [] if decomposition is None else list(decomposition.leaves)
-    counts = [] if decomposition is None else decomposition.leaf_point_indices
-    labels = [f'{i}: {len(indices)} pts' for i, indices in enumerate(counts)]
-    outputs: dict[str, Any] = {'boxes': box_markers(leaves, header, labels=labels)}
+    leaves = [] if result is None else result.leaves
+    objects = [] if result is None else result.leaf_object_indices
+    counts = [] if result is None else result.leaf_observed_counts
+    labels = [
+        f'{index}: {count} pts' if len(set(objects)) < 2 else f'{obj}.{index}: {count} pts'
+        for index, (obj, count) in enumerate(zip(objects, counts, strict=True))
+    ]
+    outputs: dict[str, Any] = {
+        'boxes': box_markers(leaves, header, labels=labels, objects=objects)
+    }
     if settings.node.publish_tree:
-        inner = [] if decomposition is None else _inner_nodes(decomposition.nodes)
+        inner = [] if result is None else result.inner_boxes
+        inner_objects = [] if result is None else result.inner_object_indices
         outputs['tree'] = box_markers(
-            [node.box for node in inner], header, namespace_prefix='tree_', fill_alpha=0.0
+            inner, header, namespace_prefix='tree_', fill_alpha=0.0, objects=inner_objects
         )
     outputs['box_list'] = box_list_cloud(result, header)
     grasps = [] if result is None else result.grasps

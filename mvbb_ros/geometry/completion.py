@@ -1,0 +1,656 @@
+"""
+The hidden side of a single sensor view: what the sensor could not see is not empty space.
+
+A segmented cloud from one viewpoint holds the object's near side only. Fitted as it is, boxes
+hug that skin and the fit-and-split gain Theta* carves it into plates of sensor thickness,
+because the object's hidden inside counts as empty space. :func:`complete_view` therefore turns
+the observed points into a *solid*: the observed points, an estimate of the far side, and
+samples of the space between them along the sensor's rays (space that was never seen to be
+free). The decomposition then runs on the solid with the paper's gain.
+
+Methods (``Completion``):
+
+* ``'mirror'``: the far side is the near side mirrored about a plane (Bohg et al., "Mind the
+  Gap", ICRA 2011). The plane is found by :func:`find_mirror_plane`: among candidate planes, the
+  one whose mirror image contradicts the view least (a mirrored point the sensor would have
+  seen, in front of a seen surface or where it saw past the object), then the nearest to the
+  sensor. With an up direction the planes are vertical (the object stands on a support) and
+  the solid is also filled straight down to its lowest point; without one, planes turned up to
+  35 degrees from the viewing direction are tried.
+* ``'extrude'``: every observed point is extended away from the viewpoint until it leaves the
+  observed points' minimum box.
+* ``'none'``: the observed points alone (the paper).
+
+``docs/single_views.md`` describes the methods and what they measure on real scans and virtual
+views. The hot loops (rasterising, testing mirror planes, sampling rays) are numba kernels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import get_args, Literal
+
+from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.fit import minimum_bounding_box
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import ndimage
+
+#: How the hidden side is estimated (the ``shape_completion`` setting); see the module doc.
+Completion = Literal['none', 'mirror', 'extrude']
+COMPLETIONS: tuple[Completion, ...] = get_args(Completion)
+
+#: Raster cells per point spacing: a cell holds one or two points, so the outline has no holes.
+CELLS_PER_SPACING = 1.5
+#: Most raster cells along a side (coarser cells for objects very large for their spacing).
+MAX_RASTER_SIDE = 256
+#: Most samples of an object's estimated part (a coarser step beyond: the solid's bounds are
+#: what the decomposition uses, and they do not need more).
+MAX_SAMPLES = 40_000
+#: Points of the observed cloud whose mirror images test a candidate plane.
+MIRROR_SAMPLE = 96
+#: Plane positions tried per candidate normal, from the nearest observed point back to one
+#: object size behind the farthest.
+MIRROR_OFFSETS = 25
+#: Candidate normals turn up to this far from the viewing direction (degrees), in these steps;
+#: with an up direction they stay horizontal.
+MIRROR_TURN_DEG = 45.0
+MIRROR_CONE_DEG = 35.0
+MIRROR_STEP_DEG = 9.0
+#: A plane within this share of violations of its normal's best counts as good as the best.
+MIRROR_SLACK = 0.03
+#: Completions within this factor of the most compact one are as good; the one whose plane
+#: faces the sensor most directly wins among them.
+COMPACT_SLACK = 1.1
+#: A cloud with more than this share of its points behind another surface along their ray
+#: (:func:`behind_others`), seen from the viewpoint, is not one sensor view (a model, merged
+#: views, or a wrong viewpoint): its points are used as they are.
+MAX_SELF_HIDDEN = 0.18
+#: A jump in range of more than this many point spacings along a ray separates two surfaces.
+SURFACE_GAP = 3.0
+
+
+@dataclass(frozen=True, eq=False)
+class ViewRaster:
+    """
+    The object as the sensor saw it: an angular image around the viewing direction.
+
+    :ivar viewpoint: (3,) sensor position, metres.
+    :ivar frame: (3, 3) rows: image x, image y and the viewing direction (unit vectors).
+    :ivar origin: (2,) tangent-plane coordinates (x / z, y / z) of cell (0, 0)'s corner.
+    :ivar cell: cell size in tangent-plane units (about radians).
+    :ivar mask: (rows, cols) cells the object covers (small holes closed, one cell of margin).
+    :ivar near: (rows, cols) smallest observed range (metres) in and next to each cell, +inf
+        where nothing was observed.
+    """
+
+    viewpoint: FloatArray
+    frame: FloatArray
+    origin: FloatArray
+    cell: float
+    mask: BoolArray
+    near: FloatArray
+
+    def locate(self, points: FloatArray) -> tuple[IndexArray, FloatArray]:
+        """
+        Return each point's cell (row, column; -1, -1 outside the raster or behind the sensor).
+
+        :param points: (N, 3) points.
+        :return: the cells (N, 2) and the points' ranges from the viewpoint (N,), metres.
+        """
+        rows, cols = self.mask.shape
+        return _cells(
+            np.ascontiguousarray(points, dtype=np.float64),
+            self.viewpoint,
+            self.frame,
+            self.origin,
+            self.cell,
+            rows,
+            cols,
+        )
+
+    def hidden(self, points: FloatArray, tolerance: float) -> BoolArray:
+        """
+        Tell which points the sensor could not have seen: behind the seen surface, in the outline.
+
+        A point is hidden when it falls in the object's outline and lies more than `tolerance`
+        (metres) behind the nearest observed range there.
+        """
+        cells, ranges = self.locate(points)
+        inside = cells[:, 0] >= 0
+        rows, cols = np.maximum(cells[:, 0], 0), np.maximum(cells[:, 1], 0)
+        return inside & self.mask[rows, cols] & (ranges > self.near[rows, cols] + tolerance)
+
+
+@nb.njit(
+    'Tuple((int64[:, :], float64[:]))(float64[:, :], float64[:], float64[:, :], float64[:], '
+    'float64, int64, int64)',
+    cache=True,
+)
+def _cells(
+    points: FloatArray,
+    viewpoint: FloatArray,
+    frame: FloatArray,
+    origin: FloatArray,
+    cell: float,
+    rows: int,
+    cols: int,
+) -> tuple[IndexArray, FloatArray]:
+    """Kernel of :meth:`ViewRaster.locate`."""
+    count = points.shape[0]
+    index = np.full((count, 2), -1, dtype=np.int64)
+    ranges = np.empty(count)
+    for i in range(count):
+        dx = points[i, 0] - viewpoint[0]
+        dy = points[i, 1] - viewpoint[1]
+        dz = points[i, 2] - viewpoint[2]
+        ranges[i] = math.sqrt(dx * dx + dy * dy + dz * dz)
+        depth = frame[2, 0] * dx + frame[2, 1] * dy + frame[2, 2] * dz
+        if depth <= 0.0:
+            continue
+        u = (frame[0, 0] * dx + frame[0, 1] * dy + frame[0, 2] * dz) / depth
+        v = (frame[1, 0] * dx + frame[1, 1] * dy + frame[1, 2] * dz) / depth
+        row = math.floor((u - origin[0]) / cell)
+        col = math.floor((v - origin[1]) / cell)
+        if 0 <= row < rows and 0 <= col < cols:
+            index[i, 0] = row
+            index[i, 1] = col
+    return index, ranges
+
+
+def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> ViewRaster:
+    """
+    Rasterise `points` as seen from `viewpoint`, in cells 1.5 point spacings wide.
+
+    :param points: (N, 3) observed points, N >= 1, metres, all in front of the viewpoint.
+    :param viewpoint: (3,) sensor position in the points' frame.
+    :param spacing: distance between neighbouring points (the voxel size), metres, > 0.
+    :raises ValueError: when the points surround the viewpoint (no viewing direction).
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    eye = np.asarray(viewpoint, dtype=np.float64)
+    axis = pts.mean(axis=0) - eye
+    length = float(np.linalg.norm(axis))
+    if not length > 0.0:
+        raise ValueError('the points surround the viewpoint: there is no viewing direction')
+    axis /= length
+    side = np.cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
+    side /= np.linalg.norm(side)
+    frame = np.stack([side, np.cross(axis, side), axis])
+    relative = (pts - eye) @ frame.T
+    ahead = relative[:, 2] > 0.0
+    if not np.any(ahead):
+        raise ValueError('no point lies in front of the viewpoint')
+    tangent = relative[ahead, :2] / relative[ahead, 2:3]
+    distance = float(np.median(np.linalg.norm(pts - eye, axis=1)))
+    widest = float(np.max(np.ptp(tangent, axis=0)))
+    cell = max(CELLS_PER_SPACING * spacing / distance, widest / MAX_RASTER_SIDE)
+    margin = 4
+    origin = tangent.min(axis=0) - margin * cell
+    shape = np.ceil((tangent.max(axis=0) - origin) / cell).astype(np.int64) + margin + 1
+    rows, cols = int(shape[0]), int(shape[1])
+    index, ranges = _cells(pts, eye, frame, origin, cell, rows, cols)
+    seen = index[:, 0] >= 0
+    covered = np.zeros((rows, cols), dtype=bool)
+    covered[index[seen, 0], index[seen, 1]] = True
+    mask = ndimage.binary_dilation(ndimage.binary_closing(covered, iterations=2))
+    near = np.full((rows, cols), np.inf)
+    np.minimum.at(near, (index[seen, 0], index[seen, 1]), ranges[seen])
+    return ViewRaster(eye, frame, origin, cell, mask, ndimage.minimum_filter(near, size=3))
+
+
+@nb.njit(
+    'float64[:, :](float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], '
+    'float64[:, :], float64[:], float64, boolean[:, :], float64[:, :], float64)',
+    cache=True,
+)
+def _mirror_violations(
+    sample: FloatArray,
+    center: FloatArray,
+    normals: FloatArray,
+    offsets: FloatArray,
+    viewpoint: FloatArray,
+    frame: FloatArray,
+    origin: FloatArray,
+    cell: float,
+    mask: BoolArray,
+    near: FloatArray,
+    tolerance: float,
+) -> FloatArray:
+    """Return the share of `sample` whose mirror image contradicts the view, per plane."""
+    rows, cols = mask.shape
+    count = sample.shape[0]
+    out = np.zeros((normals.shape[0], offsets.shape[1]))
+    for k in range(normals.shape[0]):
+        n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        for j in range(offsets.shape[1]):
+            bad = 0
+            for i in range(count):
+                height = (
+                    (sample[i, 0] - center[0]) * n0
+                    + (sample[i, 1] - center[1]) * n1
+                    + (sample[i, 2] - center[2]) * n2
+                    - offsets[k, j]
+                )
+                x = sample[i, 0] - 2.0 * height * n0 - viewpoint[0]
+                y = sample[i, 1] - 2.0 * height * n1 - viewpoint[1]
+                z = sample[i, 2] - 2.0 * height * n2 - viewpoint[2]
+                depth = frame[2, 0] * x + frame[2, 1] * y + frame[2, 2] * z
+                if depth <= 0.0:
+                    bad += 1
+                    continue
+                u = (frame[0, 0] * x + frame[0, 1] * y + frame[0, 2] * z) / depth
+                v = (frame[1, 0] * x + frame[1, 1] * y + frame[1, 2] * z) / depth
+                row = math.floor((u - origin[0]) / cell)
+                col = math.floor((v - origin[1]) / cell)
+                if row < 0 or col < 0 or row >= rows or col >= cols or not mask[row, col]:
+                    bad += 1
+                elif math.sqrt(x * x + y * y + z * z) < near[row, col] - tolerance:
+                    bad += 1
+            out[k, j] = bad / count
+    return out
+
+
+@dataclass(frozen=True)
+class MirrorPlane:
+    """
+    The plane a view's far side is mirrored about.
+
+    :ivar normal: (3,) unit normal, pointing away from the sensor.
+    :ivar point: (3,) a point on the plane.
+    :ivar violations: share of the tested points whose mirror image contradicts the view.
+    """
+
+    normal: FloatArray
+    point: FloatArray
+    violations: float
+
+    def mirror(self, points: FloatArray) -> FloatArray:
+        """Return `points` (N, 3) mirrored about the plane."""
+        heights = (points - self.point) @ self.normal
+        return points - 2.0 * heights[:, None] * self.normal
+
+
+def _horizontal(vector: FloatArray, up: FloatArray) -> FloatArray | None:
+    """Return `vector` made perpendicular to `up` and unit, None when it is nearly vertical."""
+    flat = vector - (vector @ up) * up
+    norm = float(np.linalg.norm(flat))
+    return None if norm < 0.3 else flat / norm
+
+
+def _candidate_normals(
+    view: FloatArray, up: FloatArray | None, axes: FloatArray
+) -> tuple[FloatArray, FloatArray, int]:
+    """
+    Return the candidate plane normals and the preferred one.
+
+    With `up`: horizontal normals up to :data:`MIRROR_TURN_DEG` either side of the horizontal
+    viewing direction. Without: normals in a cone of :data:`MIRROR_CONE_DEG` around the viewing
+    direction. Both add the `axes` (the observed points' box axes, the object's likely symmetry
+    directions) that lie within 60 degrees of the preferred normal, after the others.
+
+    :return: the normals (K, 3), the preferred normal, and how many of the normals are the
+        fan's (the rest are box axes).
+    """
+    step = math.radians(MIRROR_STEP_DEG)
+    normals: list[FloatArray] = []
+    extra: list[FloatArray | None]
+    if up is not None:
+        preferred = _horizontal(view, up)
+        for axis in axes:  # looking straight down: any vertical plane will do
+            preferred = preferred if preferred is not None else _horizontal(axis, up)
+        assert preferred is not None
+        side = np.cross(up, preferred)
+        turn = math.radians(MIRROR_TURN_DEG)
+        for angle in np.arange(-turn, turn + 1e-9, step):
+            normals.append(math.cos(angle) * preferred + math.sin(angle) * side)
+        extra = [_horizontal(axis, up) for axis in axes]
+    else:
+        preferred = view
+        first = np.cross(view, np.eye(3)[int(np.argmin(np.abs(view)))])
+        first /= np.linalg.norm(first)
+        second = np.cross(view, first)
+        for polar in np.arange(0.0, math.radians(MIRROR_CONE_DEG) + 1e-9, step):
+            ring = max(1, round(2.0 * math.pi * math.sin(polar) / step))
+            for azimuth in np.linspace(0.0, 2.0 * math.pi, ring, endpoint=False):
+                across = math.cos(azimuth) * first + math.sin(azimuth) * second
+                normals.append(math.cos(polar) * view + math.sin(polar) * across)
+        extra = list(axes)
+    fan = len(normals)
+    for axis in extra:
+        if axis is not None:
+            axis = axis if axis @ preferred >= 0.0 else -axis
+            if axis @ preferred >= 0.5:
+                normals.append(axis)
+    return np.array(normals), preferred, fan
+
+
+def behind_others(points: FloatArray, raster: ViewRaster, gap: float) -> BoolArray:
+    """
+    Tell which points lie behind another surface along their ray.
+
+    A point is behind another surface when it lies more than `gap` (metres) behind the previous
+    point of its raster cell, or behind such a point. A single view has one surface along each
+    ray (a slanted one spreads its points in range, but without gaps); a model, merged views or
+    a wrong viewpoint put several surfaces on one ray.
+    """
+    cells, ranges = raster.locate(points)
+    flat = cells[:, 0] * raster.mask.shape[1] + cells[:, 1]
+    order = np.lexsort((ranges, flat))
+    flat, ranges = flat[order], ranges[order]
+    same_cell = flat[1:] == flat[:-1]
+    jumps = np.concatenate([[0], np.cumsum(same_cell & (np.diff(ranges) > gap))])
+    starts = np.concatenate([[0], np.flatnonzero(~same_cell) + 1])
+    first_of_cell = np.repeat(starts, np.diff(np.concatenate([starts, [len(flat)]])))
+    behind = np.zeros(len(points), dtype=bool)
+    behind[order] = (jumps - jumps[first_of_cell] > 0) & (flat >= 0)
+    return behind
+
+
+def find_mirror_plane(
+    points: FloatArray,
+    raster: ViewRaster,
+    *,
+    axes: FloatArray,
+    up: FloatArray | None,
+    spacing: float,
+) -> MirrorPlane:
+    """
+    Find the plane about which the observed points mirror onto the hidden side most plausibly.
+
+    Every candidate normal (:func:`_candidate_normals`) is tried at :data:`MIRROR_OFFSETS`
+    positions from the nearest observed point back to one object size behind the farthest. A
+    mirrored point contradicts the view when the sensor would have seen it: outside the
+    object's outline, or more than `spacing` in front of a seen surface. Per normal, the nearest
+    plane within :data:`MIRROR_SLACK` of its fewest contradictions is kept; over the normals,
+    the fewest contradictions win (in steps of the slack), then the plane nearest the sensor (in
+    steps of `spacing`: the tightest object the view allows), then the normal nearest the
+    preferred one. An evenly spread sample of :data:`MIRROR_SAMPLE` points is tested.
+
+    :param points: (N, 3) observed points.
+    :param raster: the view of those points (:func:`view_raster`).
+    :param axes: (3, 3) rows: the observed points' box axes, extra candidate normals.
+    :param up: unit up direction, or None when unknown.
+    :param spacing: point spacing in metres (the depth tolerance of the test).
+    :return: the plane.
+    """
+    sample = np.ascontiguousarray(points[:: max(1, len(points) // MIRROR_SAMPLE)])
+    center = points.mean(axis=0)
+    view = center - raster.viewpoint
+    view /= np.linalg.norm(view)
+    normals, preferred, fan = _candidate_normals(view, up, np.asarray(axes, dtype=np.float64))
+    heights = (points - center) @ normals.T
+    nearest = heights.min(axis=0)
+    size = float(np.max(np.ptp(points, axis=0)))
+    steps = np.linspace(0.0, 1.0, MIRROR_OFFSETS)
+    planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
+    violations = _mirror_violations(
+        sample,
+        center,
+        np.ascontiguousarray(normals),
+        np.ascontiguousarray(planes),
+        raster.viewpoint,
+        raster.frame,
+        raster.origin,
+        raster.cell,
+        raster.mask,
+        raster.near,
+        spacing,
+    )
+    # Per normal: the nearest plane within the slack of its fewest contradictions.
+    chosen = np.array(
+        [int(np.flatnonzero(row <= row.min() + MIRROR_SLACK)[0]) for row in violations]
+    )
+    rows = np.arange(len(normals))
+    bad = violations[rows, chosen]
+    offsets = planes[rows, chosen]
+    # Over the normals: the planes the view refutes least (within two sample points) are
+    # plausible. The observed points' box axes, the object's likely symmetry directions, go
+    # first when one of them is plausible; otherwise the fan's. Among those, the most compact
+    # completion wins (Occam: the least unseen matter), preferring the viewing direction among
+    # completions within COMPACT_SLACK of the most compact.
+    plausible = np.flatnonzero(bad <= bad.min() + 2.0 / len(sample))
+    if np.any(plausible >= fan):
+        plausible = plausible[plausible >= fan]
+    sizes = np.array(
+        [
+            _completion_size(sample, normals[k], center + offsets[k] * normals[k], up, axes)
+            for k in plausible
+        ]
+    )
+    turns = np.arccos(np.clip(normals[plausible] @ preferred, -1.0, 1.0))
+    compact = sizes <= COMPACT_SLACK * sizes.min()
+    k = int(plausible[compact][np.argmin(turns[compact])])
+    return MirrorPlane(normals[k], center + offsets[k] * normals[k], float(bad[k]))
+
+
+def _completion_size(
+    sample: FloatArray,
+    normal: FloatArray,
+    point: FloatArray,
+    up: FloatArray | None,
+    axes: FloatArray,
+) -> float:
+    """
+    Return how much a mirror plane makes of the object: the sample and its mirror image's
+    footprint area across `up` (a vertical mirror keeps heights), or, without `up`, their box
+    volume along `axes`.
+    """
+    heights = (sample - point) @ normal
+    both = np.concatenate([sample, sample - 2.0 * heights[:, None] * normal])
+    if up is None:
+        local = both @ np.asarray(axes).T
+        return float(np.prod(np.ptp(local, axis=0)))
+    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    first /= np.linalg.norm(first)
+    flat = np.column_stack([both @ first, both @ np.cross(up, first)])
+    return _hull_area(flat)
+
+
+def _hull_area(points: FloatArray) -> float:
+    """Return the area of the convex hull of 2D `points` (0 for fewer than three or a line)."""
+    order = np.lexsort((points[:, 1], points[:, 0]))
+    ordered = points[order]
+
+    def chain(rows: FloatArray) -> list[FloatArray]:
+        hull: list[FloatArray] = []
+        for row in rows:
+            while len(hull) >= 2:
+                a, b = hull[-2], hull[-1]
+                if (b[0] - a[0]) * (row[1] - a[1]) - (b[1] - a[1]) * (row[0] - a[0]) > 0.0:
+                    break
+                hull.pop()
+            hull.append(row)
+        return hull
+
+    ring = chain(ordered)[:-1] + chain(ordered[::-1])[:-1]
+    if len(ring) < 3:
+        return 0.0
+    xs = np.array([r[0] for r in ring])
+    ys = np.array([r[1] for r in ring])
+    return 0.5 * abs(float(xs @ np.roll(ys, -1) - ys @ np.roll(xs, -1)))
+
+
+@nb.njit(
+    'float64[:, :](float64[:, :], float64[:, :], float64[:], float64)',
+    cache=True,
+)
+def _segment_samples(
+    starts: FloatArray, directions: FloatArray, lengths: FloatArray, step: float
+) -> FloatArray:
+    """Return samples every `step` along start + t direction for 0 < t <= length, per row."""
+    count = 0
+    for i in range(starts.shape[0]):
+        if lengths[i] >= step:
+            count += int(lengths[i] / step)
+    out = np.empty((count, 3))
+    k = 0
+    for i in range(starts.shape[0]):
+        if lengths[i] < step:
+            continue
+        for s in range(1, int(lengths[i] / step) + 1):
+            for axis in range(3):
+                out[k, axis] = starts[i, axis] + directions[i, axis] * (s * step)
+            k += 1
+    return out
+
+
+def _samples(
+    starts: FloatArray, directions: FloatArray, lengths: FloatArray, step: float
+) -> FloatArray:
+    """Sample the segments every `step`, or coarser when that would exceed :data:`MAX_SAMPLES`."""
+    step = max(step, float(np.sum(lengths)) / MAX_SAMPLES)
+    return _segment_samples(
+        np.ascontiguousarray(starts), np.ascontiguousarray(directions), lengths, step
+    )
+
+
+def _rays(points: FloatArray, viewpoint: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return the unit directions from `viewpoint` to `points` and their ranges."""
+    directions = points - viewpoint
+    ranges = np.linalg.norm(directions, axis=1)
+    return directions / np.maximum(ranges, 1e-300)[:, None], ranges
+
+
+def fill_to_far_side(
+    points: FloatArray, far: FloatArray, raster: ViewRaster, step: float
+) -> FloatArray:
+    """
+    Sample the space between each observed point and the far side behind it, every `step`.
+
+    A ray's far side is the farthest `far` point in its raster cell; cells without one take the
+    farthest in the 3 x 3 cells around them (the far side's own samples are a spacing apart).
+
+    :return: (M, 3) samples, none at the observed points themselves.
+    """
+    cells, ranges = raster.locate(points)
+    far_cells, far_ranges = raster.locate(far)
+    inside = far_cells[:, 0] >= 0
+    deepest = np.full(raster.mask.shape, -np.inf)
+    np.maximum.at(deepest, (far_cells[inside, 0], far_cells[inside, 1]), far_ranges[inside])
+    deepest = np.where(np.isfinite(deepest), deepest, ndimage.maximum_filter(deepest, size=3))
+    seen = cells[:, 0] >= 0
+    exits = np.where(seen, deepest[np.maximum(cells[:, 0], 0), np.maximum(cells[:, 1], 0)], 0.0)
+    directions, _ = _rays(points, raster.viewpoint)
+    return _samples(points, directions, np.maximum(exits - ranges, 0.0), step)
+
+
+def fill_to_box(points: FloatArray, viewpoint: FloatArray, box: Box, step: float) -> FloatArray:
+    """Sample each point's ray away from `viewpoint`, every `step`, until it leaves `box`."""
+    directions, _ = _rays(points, viewpoint)
+    local = box.to_local(points)
+    along = directions @ box.rotation
+    half = box.half_extents
+    with np.errstate(divide='ignore', invalid='ignore'):
+        exits = np.where(
+            along > 0.0,
+            (half - local) / along,
+            np.where(along < 0.0, (-half - local) / along, np.inf),
+        )
+    lengths = np.clip(exits.min(axis=1), 0.0, None)
+    return _samples(points, directions, lengths, step)
+
+
+def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) -> FloatArray:
+    """
+    Sample straight down from the top of every footprint column to the height `lowest`.
+
+    The footprint is cut into `step`-wide columns across `up`; each column's highest point is
+    the top of a column of samples every `step` (the object stands on something below it).
+    """
+    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    first /= np.linalg.norm(first)
+    second = np.cross(up, first)
+    height = points @ up
+    column = np.floor(np.column_stack([points @ first, points @ second]) / step).astype(np.int64)
+    column -= column.min(axis=0)
+    key = column[:, 0] * (int(column[:, 1].max()) + 1) + column[:, 1]
+    order = np.lexsort((-height, key))
+    tops = order[np.r_[True, key[order][1:] != key[order][:-1]]]
+    down = np.repeat(-up[None, :], len(tops), axis=0)
+    return _samples(points[tops], down, height[tops] - lowest, step)
+
+
+@dataclass(frozen=True, eq=False)
+class CompletedView:
+    """
+    One object's observed points and the estimate of what the sensor could not see.
+
+    :ivar points: (M, 3) the solid: the observed points first, then the estimated ones.
+    :ivar observed: how many of :attr:`points` the sensor saw.
+    :ivar method: the completion asked for.
+    :ivar plane: the mirror plane (``'mirror'``), else None.
+    :ivar skipped: why nothing was estimated although a completion was asked for, else None.
+    """
+
+    points: FloatArray
+    observed: int
+    method: Completion
+    plane: MirrorPlane | None = None
+    skipped: str | None = None
+
+
+def complete_view(
+    points: ArrayLike,
+    *,
+    method: Completion = 'none',
+    viewpoint: ArrayLike = (0.0, 0.0, 0.0),
+    up: ArrayLike | None = None,
+    spacing: float,
+) -> CompletedView:
+    """
+    Return one object's observed points with an estimate of what the sensor could not see.
+
+    :param points: (N, 3) observed points of one object, metres, N >= 1.
+    :param method: ``'none'``, ``'mirror'`` or ``'extrude'`` (see the module doc).
+    :param viewpoint: (3,) sensor position in the points' frame (the frame's origin for camera
+        and laser frames).
+    :param up: up direction in the points' frame (need not be unit), or None when unknown.
+    :param spacing: point spacing (the voxel size), metres: the step of the samples.
+    :return: the solid, observed points first.
+    :raises ValueError: for an unknown method or a non-positive spacing.
+    """
+    if method not in COMPLETIONS:
+        raise ValueError(f'completion must be one of {COMPLETIONS}, got {method!r}')
+    if not spacing > 0.0:
+        raise ValueError(f'spacing must be > 0, got {spacing!r}')
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    eye = np.asarray(viewpoint, dtype=np.float64)
+    if method == 'none' or len(pts) < 4:
+        return CompletedView(pts, len(pts), method)
+    raster = view_raster(pts, eye, spacing)
+    self_hidden = float(np.mean(behind_others(pts, raster, SURFACE_GAP * spacing)))
+    if self_hidden > MAX_SELF_HIDDEN:
+        reason = (
+            f'not one view from {eye.tolist()}: {100 * self_hidden:.0f} % of the points lie '
+            'behind others'
+        )
+        return CompletedView(pts, len(pts), method, skipped=reason)
+    # The observed points' minimum box: the extrusion stops at its far faces, and its axes are
+    # the object's likely symmetry directions.
+    box = minimum_bounding_box(pts)
+    if method == 'extrude':
+        solid = np.concatenate([pts, fill_to_box(pts, eye, box, spacing)])
+        return CompletedView(solid, len(pts), method)
+    unit_up = None
+    if up is not None:
+        unit_up = np.asarray(up, dtype=np.float64)
+        unit_up = unit_up / np.linalg.norm(unit_up)
+    plane = find_mirror_plane(pts, raster, axes=box.rotation.T, up=unit_up, spacing=spacing)
+    # Keep the mirror images that add something: hidden behind the seen surface. The others
+    # either repeat a seen surface or contradict the view.
+    far = plane.mirror(pts)
+    far = far[raster.hidden(far, spacing)]
+    # The space between the seen surface and its mirror image, within the box of the two: rays
+    # at the outline must not carry the far side's range past the object's sides.
+    both = np.concatenate([pts, far])
+    bounds = minimum_bounding_box(both)
+    fill = fill_to_far_side(pts, far, raster, spacing)
+    parts = [both, fill[bounds.contains(fill, tol=spacing)]]
+    if unit_up is not None:
+        lowest = float(np.min(both @ unit_up))
+        parts.append(fill_down(np.concatenate(parts), unit_up, lowest, spacing))
+    return CompletedView(np.concatenate(parts), len(pts), method, plane)

@@ -1,0 +1,185 @@
+"""
+Objects in one cloud: a "segmented" cloud may still hold several objects, or one in pieces.
+
+:func:`separate_objects` groups points into Euclidean clusters (points closer than
+`tolerance` are one object), then joins the pieces of an object that something in front of it
+cut apart: two clusters are one object when they come within :data:`PIECE_GAP_FACTOR` times
+the tolerance of each other and overlap or touch in the sensor's view (one piece partly hides,
+or continues, the other). Side-by-side objects with background between them in the view stay
+apart. The rule and its measurements are in ``docs/single_views.md``.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.geometry.completion import view_raster
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+#: Two clusters closer than this many cluster tolerances, touching in the view, are one object.
+#: Measured on the shared real scans: pieces of one object separated by self-occlusion or an
+#: occluder lie 3.4 to 4.4 cm apart at the 2 cm tolerance (``docs/single_views.md``).
+PIECE_GAP_FACTOR = 2.5
+
+
+@nb.njit(cache=True)
+def _root(parent: IndexArray, node: int) -> int:
+    """Find `node`'s set in the union-find forest, halving the path on the way."""
+    while parent[node] != node:
+        parent[node] = parent[parent[node]]
+        node = parent[node]
+    return node
+
+
+@nb.njit('int64[:](float64[:, :], float64)', cache=True)
+def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
+    """
+    Label the Euclidean clusters of `points` at `tolerance` (labels 0 .. k-1, by first point).
+
+    Points are binned in cubic cells one tolerance wide; each point is compared with the points
+    of its own cell and the 26 around it (found by binary search in the sorted cell keys), and
+    pairs closer than the tolerance are joined in a union-find forest. O(N) for even clouds.
+    """
+    count = points.shape[0]
+    low = np.empty(3)
+    span = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        low[axis] = points[:, axis].min()
+        span[axis] = int((points[:, axis].max() - low[axis]) / tolerance) + 3
+    cells = np.empty((count, 3), dtype=np.int64)
+    keys = np.empty(count, dtype=np.int64)
+    for i in range(count):
+        for axis in range(3):
+            cells[i, axis] = int((points[i, axis] - low[axis]) / tolerance) + 1
+        keys[i] = (cells[i, 0] * span[1] + cells[i, 1]) * span[2] + cells[i, 2]
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    parent = np.arange(count)
+    squared = tolerance * tolerance
+    for i in range(count):
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    key = ((cells[i, 0] + dx) * span[1] + cells[i, 1] + dy) * span[2] + (
+                        cells[i, 2] + dz
+                    )
+                    start = np.searchsorted(sorted_keys, key)
+                    for k in range(start, count):
+                        if sorted_keys[k] != key:
+                            break
+                        j = order[k]
+                        if j <= i:
+                            continue
+                        distance = 0.0
+                        for axis in range(3):
+                            delta = points[i, axis] - points[j, axis]
+                            distance += delta * delta
+                        if distance <= squared:
+                            first, second = _root(parent, i), _root(parent, j)
+                            if first != second:
+                                parent[max(first, second)] = min(first, second)
+    labels = np.empty(count, dtype=np.int64)
+    names = np.full(count, -1, dtype=np.int64)
+    next_label = 0
+    for i in range(count):
+        root = _root(parent, i)
+        if names[root] < 0:
+            names[root] = next_label
+            next_label += 1
+        labels[i] = names[root]
+    return labels
+
+
+def separate_objects(
+    points: ArrayLike,
+    tolerance: float,
+    *,
+    viewpoint: ArrayLike = (0.0, 0.0, 0.0),
+    spacing: float,
+    min_points: int = 1,
+) -> list[IndexArray]:
+    """
+    Split a cloud into objects.
+
+    :param points: (N, 3) points, metres.
+    :param tolerance: points closer than this (metres) belong to one object; 0 keeps the whole
+        cloud as one object.
+    :param viewpoint: (3,) sensor position in the points' frame.
+    :param spacing: point spacing (the voxel size), metres: the view's resolution.
+    :param min_points: clusters with fewer points are left out (noise).
+    :return: each object's point indices (sorted), largest object first (ties: the one with
+        the lower first index).
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if tolerance <= 0.0 or len(pts) < 2:
+        return [np.arange(len(pts), dtype=np.intp)] if len(pts) >= min_points else []
+    labels = _cluster_labels(pts, float(tolerance)).astype(np.intp)
+    count = int(labels.max()) + 1
+    if count > 1:
+        labels = _join_pieces(
+            pts,
+            labels,
+            count,
+            tolerance,
+            np.asarray(viewpoint, dtype=np.float64),
+            spacing,
+            min_points,
+        )
+    groups = [np.flatnonzero(labels == label) for label in np.unique(labels)]
+    groups = [group for group in groups if len(group) >= min_points]
+    groups.sort(key=lambda group: (-len(group), int(group[0])))
+    return groups
+
+
+def _join_pieces(
+    points: FloatArray,
+    labels: IndexArray,
+    count: int,
+    tolerance: float,
+    viewpoint: FloatArray,
+    spacing: float,
+    min_points: int,
+) -> IndexArray:
+    """Relabel clusters that are pieces of one object (close, and touching in the view)."""
+    sizes = np.bincount(labels, minlength=count)
+    pieces = np.flatnonzero(sizes >= min_points)
+    if len(pieces) < 2:
+        return labels
+    raster = view_raster(points, viewpoint, spacing)
+    cells, _ = raster.locate(points)
+    seen = cells[:, 0] >= 0
+    shape = raster.mask.shape
+    # Each piece's outline, grown by two cells, as sets of flat cell numbers.
+    outlines: dict[int, IndexArray] = {}
+    grown: dict[int, IndexArray] = {}
+    for label in pieces.tolist():
+        mine = seen & (labels == label)
+        outline = np.zeros(shape, dtype=bool)
+        outline[cells[mine, 0], cells[mine, 1]] = True
+        outlines[label] = np.flatnonzero(outline)
+        grown[label] = np.flatnonzero(ndimage.binary_dilation(outline, iterations=2))
+    trees = {label: cKDTree(points[labels == label]) for label in pieces.tolist()}
+    gap = PIECE_GAP_FACTOR * tolerance
+    edges = []
+    for first, second in itertools.combinations(pieces.tolist(), 2):
+        if not np.intersect1d(grown[first], outlines[second]).size:
+            continue
+        smaller, larger = sorted((first, second), key=lambda label: trees[label].n)
+        distance, _ = trees[larger].query(trees[smaller].data, distance_upper_bound=gap)
+        if np.any(np.isfinite(distance)):
+            edges.append((first, second))
+    if not edges:
+        return labels
+    pairs = np.array(edges)
+    graph = coo_matrix(
+        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(count, count)
+    )
+    _, merged = connected_components(graph, directed=False)
+    return merged[labels].astype(np.intp)

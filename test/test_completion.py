@@ -1,0 +1,157 @@
+"""The hidden side of single views (geometry.completion): mirrored, extruded, or left alone."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.completion import (
+    behind_others,
+    complete_view,
+    MAX_SAMPLES,
+    view_raster,
+)
+from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.pipeline.filtering import filter_points
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+SPACING = 0.005
+
+
+def box_view(
+    extents: np.ndarray,
+    yaw: float,
+    elevation: float,
+    distance: float,
+    spacing: float = SPACING,
+    seed: int = 0,
+) -> tuple[np.ndarray, Box, np.ndarray]:
+    """
+    Return what a sensor at the origin sees of a box standing on a table, and the box.
+
+    The box (world z up, resting on z = 0, turned by `yaw` about z) is seen from `elevation`
+    radians above the table at `distance` metres. Only the faces turned towards the sensor are
+    sampled, on a grid `spacing` apart with 1 mm noise: a single view of a convex object.
+
+    :return: the points and the box in the sensor's frame (x right, y down, z forward), and the
+        up direction in that frame.
+    """
+    rng = np.random.default_rng(seed)
+    turn = Rotation.from_euler('z', yaw).as_matrix()
+    box = Box(center=[0.0, 0.0, extents[2] / 2.0], rotation=turn, extents=extents)
+    eye = box.center + distance * np.array([math.cos(elevation), 0.0, math.sin(elevation)])
+    points = []
+    for normal, center in zip(box.face_normals(), box.face_centers(), strict=True):
+        if normal @ (eye - center) <= 0.0:
+            continue
+        axes = [box.rotation[:, k] for k in range(3) if abs(box.rotation[:, k] @ normal) < 0.5]
+        sizes = [float(extents[k]) for k in range(3) if abs(box.rotation[:, k] @ normal) < 0.5]
+        u = np.arange(-sizes[0] / 2, sizes[0] / 2 + 1e-9, spacing)
+        v = np.arange(-sizes[1] / 2, sizes[1] / 2 + 1e-9, spacing)
+        grid = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+        points.append(center + grid[:, :1] * axes[0] + grid[:, 1:] * axes[1])
+    world = np.concatenate(points)
+    world += rng.normal(scale=0.001, size=world.shape)
+    # Camera optical frame: z towards the box centre, x to the right, y down.
+    forward = box.center - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    to_camera = np.stack([right, down, forward])
+    camera_box = Box(
+        center=to_camera @ (box.center - eye),
+        rotation=to_camera @ box.rotation,
+        extents=extents,
+    )
+    return (world - eye) @ to_camera.T, camera_box, to_camera @ [0.0, 0.0, 1.0]
+
+
+def surface_samples(box: Box, count: int = 4000, seed: int = 1) -> np.ndarray:
+    """Return points spread over every face of `box`, by area."""
+    rng = np.random.default_rng(seed)
+    local = rng.uniform(-0.5, 0.5, size=(count, 3)) * box.extents
+    areas = np.array([box.extents[1] * box.extents[2], box.extents[0] * box.extents[2]])
+    areas = np.append(areas, box.extents[0] * box.extents[1])
+    axis = rng.choice(3, size=count, p=areas / areas.sum())
+    local[np.arange(count), axis] = np.sign(rng.uniform(-1, 1, count)) * box.half_extents[axis]
+    return box.to_world(local)
+
+
+def test_none_returns_the_observed_points_untouched():
+    points, _, _ = box_view(np.array([0.1, 0.06, 0.15]), 0.3, math.radians(45), 0.7)
+    done = complete_view(points, method='none', spacing=SPACING)
+    assert done.observed == len(points) and done.plane is None and done.skipped is None
+    np.testing.assert_array_equal(done.points, points)
+
+
+@pytest.mark.parametrize('method', ['mirror', 'extrude'])
+def test_observed_points_come_first_and_estimates_are_hidden_from_the_sensor(method):
+    points, _, up = box_view(np.array([0.1, 0.06, 0.15]), 0.5, math.radians(50), 0.7)
+    done = complete_view(points, method=method, up=up, spacing=SPACING)
+    np.testing.assert_array_equal(done.points[: done.observed], points)
+    estimated = done.points[done.observed :]
+    assert len(estimated) > len(points), 'the hidden side has volume'
+    raster = view_raster(points, np.zeros(3), SPACING)
+    cells, ranges = raster.locate(estimated)
+    inside = cells[:, 0] >= 0
+    rows, cols = cells[inside, 0], cells[inside, 1]
+    # No estimated point stands in front of what the sensor saw (the view would refute it).
+    assert np.all(ranges[inside] >= raster.near[rows, cols] - 2 * SPACING)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    size=st.tuples(st.floats(0.04, 0.2), st.floats(0.03, 0.12), st.floats(0.05, 0.25)).map(
+        np.array
+    ),
+    yaw=st.floats(0.0, math.pi),
+    elevation=st.floats(math.radians(30), math.radians(70)),
+    distance=st.floats(0.5, 1.0),
+)
+def test_property_mirror_recovers_the_whole_box_from_one_view(size, yaw, elevation, distance):
+    """A box seen from above and one side is completed to the whole box, not a plate."""
+    points, truth, up = box_view(size, yaw, elevation, distance)
+    done = complete_view(points, method='mirror', up=up, spacing=SPACING)
+    solid = minimum_bounding_box(done.points)
+    covered = solid.contains(surface_samples(truth), tol=0.003)
+    assert covered.mean() >= 0.95, 'the completed box covers the whole box'
+    assert solid.volume <= 1.6 * truth.volume + 1e-4, 'not much bigger than the box'
+    assert done.skipped is None and done.plane is not None
+    assert abs(done.plane.normal @ up) < 1e-9, 'with an up direction the mirror is vertical'
+
+
+def test_a_real_single_view_is_completed_and_a_whole_model_is_not():
+    view = segmented_object_cloud('can', seed=0).astype(np.float64)
+    view, _ = filter_points(view, voxel_size=SPACING)
+    raster = view_raster(view, np.zeros(3), SPACING)
+    assert behind_others(view, raster, 3 * SPACING).mean() < 0.05
+    done = complete_view(view, method='mirror', spacing=SPACING)
+    assert done.skipped is None and len(done.points) > 2 * len(view)
+
+    # The same can sampled all round (both sides: not what one sensor sees).
+    whole = np.concatenate([view, view * [1.0, 1.0, -1.0] + [0.0, 0.0, 2 * view[:, 2].max()]])
+    done = complete_view(whole, method='mirror', spacing=SPACING)
+    assert done.skipped is not None and 'not one view' in done.skipped
+    np.testing.assert_array_equal(done.points, whole)
+
+
+def test_huge_objects_for_their_spacing_stay_bounded():
+    """A 20 m object at a 5 mm spacing: coarser raster and samples, no memory blow-up."""
+    points, _, up = box_view(np.array([20.0, 12.0, 30.0]), 0.4, math.radians(40), 60.0, 0.5)
+    done = complete_view(points, method='mirror', up=up, spacing=SPACING)
+    assert len(done.points) - done.observed <= 3 * MAX_SAMPLES
+    assert view_raster(points, np.zeros(3), SPACING).mask.size <= 300 * 300
+
+
+def test_bad_arguments_are_refused():
+    points, _, _ = box_view(np.array([0.1, 0.06, 0.15]), 0.3, math.radians(45), 0.7)
+    with pytest.raises(ValueError, match='completion must be one of'):
+        complete_view(points, method='guess', spacing=SPACING)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match='spacing'):
+        complete_view(points, method='mirror', spacing=0.0)
