@@ -67,22 +67,21 @@ PICTURE_MESHES = ('mug', 'cereal', 'bunny', 'duck')
 
 #: The configurations: label -> preset, node parameter overrides and whether the view's up
 #: direction is passed (robot with TF) or not (unknown). New approaches are new entries.
+#: The node's defaults before issue 15: the paper's boxes on filtered points, one object.
+_BEFORE = {'shape_completion': 'none', 'min_box_thickness': 0.0, 'cluster_tolerance': 0.0}
 CONFIGS: dict[str, dict[str, Any]] = {
     'paper': {'preset': 'paper', 'params': {}, 'up': False},
+    'before': {'preset': 'node', 'params': _BEFORE, 'up': False},
+    # Issue 15's approaches (docs/single_views.md): a thickness floor alone, extrusion, mirror.
+    'floor': {'preset': 'node', 'params': {'shape_completion': 'none'}, 'up': False},
+    'extrude+up': {'preset': 'node', 'params': {'shape_completion': 'extrude'}, 'up': True},
+    'mirror, no floor+up': {'preset': 'node', 'params': {'min_box_thickness': 0.0}, 'up': True},
+    # The node's defaults (mirror completion, 1 cm floor, objects separated), with and without
+    # the up direction a robot knows from TF.
     'node': {'preset': 'node', 'params': {}, 'up': False},
     'node+up': {'preset': 'node', 'params': {}, 'up': True},
     # Issue 16's measuring conditions: a 14 cm opening, up from the table.
     'node+up/14cm': {'preset': 'node', 'params': {'gripper_max_width': 0.14}, 'up': True},
-    # Issue 15's approaches, once their parameters exist (skipped until then):
-    'mirror+up': {
-        'preset': 'node',
-        'params': {
-            'shape_completion': 'mirror',
-            'min_box_thickness': 0.01,
-            'cluster_tolerance': 0.02,
-        },
-        'up': True,
-    },
 }
 
 #: Columns of the raw rows (``--json``), one row per view (or scan), configuration and t.

@@ -6,7 +6,9 @@ Regenerate the pictures under docs/ from the shared models and the project's own
 - bunny_thresholds.png: the Stanford Bunny's vertices decomposed at t = 0.90, 0.94, 0.98;
 - grasps_mug.png, grasps_bunny.png: the ranked grasp hypotheses on the mug (5,000 surface
   samples) and the bunny (vertices);
-- grasp_convention.png: which gripper axis approaches and which closes.
+- grasp_convention.png: which gripper axis approaches and which closes;
+- single_views_scans.png, single_views_virtual.png: four real scans and two virtual views of
+  the shared meshes, the paper's algorithm beside the node's defaults (docs/single_views.md).
 """
 
 from __future__ import annotations
@@ -19,9 +21,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from mvbb_ros.cli.atomic import atomic_path
 from mvbb_ros.cli.render import Panel, render_panels
+from mvbb_ros.evaluation.views import load_table_object, MODEL_BY_NAME, real_scans, single_views
 from mvbb_ros.geometry.box import Box, EDGES
 from mvbb_ros.geometry.decomposition import decompose
 from mvbb_ros.geometry.grasps import grasp_hypotheses
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -52,6 +57,67 @@ def grasps_on(points: np.ndarray, scale: float, name: str, out: Path, unit: str)
         out / f'grasps_{name.lower()}.png',
         [Panel(points, decomposition.leaves, grasps=grasps, title=title)],
         unit=unit,
+    )
+
+
+#: The real scans and virtual views of the single-view figures: a box, a bowl, a stereo mug and
+#: a laser scan of the bunny; the cereal box and the duck.
+FIGURE_SCANS = (
+    'mosd_learn38_obj3',
+    'mosd_learn33_obj3',
+    'pcl_stereo_mug',
+    'bunny_rangescan_bun000',
+)
+FIGURE_VIEWS = ('cereal', 'duck')
+
+
+def _single_view_panels(
+    name: str, points: np.ndarray, up: np.ndarray | None, surface: np.ndarray | None = None
+) -> list[Panel]:
+    """Return the paper's and the node's boxes of one view (and on the whole mesh, if given)."""
+    panels = []
+    for label, settings in (('paper', PipelineSettings.paper()), ('node', PipelineSettings())):
+        if up is not None and label == 'node':
+            settings = settings.updated({'up_direction': [float(v) for v in up]})
+        result = process_points(points, settings)
+        thin = sum(float(np.min(box.extents)) < 0.01 for box in result.leaves)
+        title = f'{name}, {label}: {len(result.leaves)} boxes, {thin} under 1 cm'
+        panels.append(Panel(points, result.leaves, grasps=result.grasps[:1], title=title))
+        if surface is not None:
+            whole = Panel(surface, result.leaves, title=f'{name}, {label}: on the whole mesh')
+            panels.append(whole)
+    return panels
+
+
+def single_view_figures(shared: Path, out: Path) -> None:
+    """Draw real scans and virtual views: the paper's boxes beside the node's defaults."""
+    scans = {scan.name: scan for scan in real_scans(shared / 'scans')}
+    panels = []
+    for name in FIGURE_SCANS:
+        scan = scans[name]
+        panels += _single_view_panels(name, scan.points, scan.up)
+    render_panels(
+        out / 'single_views_scans.png',
+        panels,
+        views=('camera', 'front'),
+        frame='data',
+        max_grasps=1,
+        title='Real single views: the paper beside the node (objects, hidden side, 1 cm floor)',
+    )
+    panels = []
+    for name in FIGURE_VIEWS:
+        view = next(
+            iter(single_views(load_table_object(shared / 'models', MODEL_BY_NAME[name]), 1))
+        )
+        surface = view.surface_in_camera()[:: max(1, len(view.obj.surface) // 4000)]
+        panels += _single_view_panels(name, view.points, view.up, surface)
+    render_panels(
+        out / 'single_views_virtual.png',
+        panels,
+        views=('camera', 'front'),
+        frame='data',
+        max_grasps=1,
+        title='Virtual views against the whole mesh (the node with the up direction)',
     )
 
 
@@ -137,7 +203,15 @@ def main() -> int:
     # into slabs; its area-uniform surface sample shows the object as a sensor would.
     mug = np.load(models / 'graspit_mug_surface5k.npy').astype(np.float64)
     grasps_on(mug, MUG_SCALE, 'Mug', args.out, unit='mm')
-    for name in ('grasp_convention', 'bunny_thresholds', 'grasps_bunny', 'grasps_mug'):
+    single_view_figures(args.shared, args.out)
+    for name in (
+        'grasp_convention',
+        'bunny_thresholds',
+        'grasps_bunny',
+        'grasps_mug',
+        'single_views_scans',
+        'single_views_virtual',
+    ):
         print(f'wrote {args.out / name}.png')
     return 0
 

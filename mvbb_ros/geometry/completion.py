@@ -435,9 +435,10 @@ def _completion_size(
     axes: FloatArray,
 ) -> float:
     """
-    Return how much a mirror plane makes of the object: the sample and its mirror image's
-    footprint area across `up` (a vertical mirror keeps heights), or, without `up`, their box
-    volume along `axes`.
+    Return how much of the object a mirror plane makes.
+
+    The area of the footprint across `up` of the sample and its mirror image (a vertical mirror
+    keeps heights), or, without `up`, the volume of their box along `axes`.
     """
     heights = (sample - point) @ normal
     both = np.concatenate([sample, sample - 2.0 * heights[:, None] * normal])
