@@ -95,7 +95,7 @@ def test_observed_points_come_first_and_estimates_are_hidden_from_the_sensor(met
     points, _, up = box_view(np.array([0.1, 0.06, 0.15]), 0.5, math.radians(50), 0.7)
     done = complete_view(points, method=method, up=up, spacing=SPACING)
     np.testing.assert_array_equal(done.points[: done.observed], points)
-    estimated = done.points[done.observed :]
+    estimated = done.estimated
     assert len(estimated) > len(points), 'the hidden side has volume'
     raster = view_raster(points, np.zeros(3), SPACING)
     cells, ranges = raster.locate(estimated)

@@ -593,6 +593,11 @@ class CompletedView:
     plane: MirrorPlane | None = None
     skipped: str | None = None
 
+    @property
+    def estimated(self) -> FloatArray:
+        """Return the estimated points (the solid without the observed ones)."""
+        return self.points[range(self.observed, len(self.points))]
+
 
 def complete_view(
     points: ArrayLike,
