@@ -596,7 +596,8 @@ class CompletedView:
     @property
     def estimated(self) -> FloatArray:
         """Return the estimated points (the solid without the observed ones)."""
-        return self.points[range(self.observed, len(self.points))]
+        start = self.observed
+        return self.points[start:]
 
 
 def complete_view(
