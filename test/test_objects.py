@@ -31,16 +31,17 @@ def test_side_by_side_objects_are_separated_largest_first():
     np.testing.assert_array_equal(objects[1], np.arange(len(small)))
 
 
-def test_pieces_of_one_occluded_object_stay_one_object():
-    """A box behind a post: its two visible pieces are 4 cm apart and touch the post's gap."""
-    left = slab((-0.12, -0.05, 0.9), (-0.02, 0.05, 1.0))
-    right = slab((0.02, -0.05, 0.9), (0.12, 0.05, 1.0))
-    # Seen from the origin the two pieces are 4 cm apart: more than the 2 cm tolerance, less
-    # than 2.5 tolerances, and adjacent in the view (the gap is only a few raster cells wide).
-    objects = separate_objects(np.concatenate([left, right]), 0.02, spacing=SPACING)
-    assert len(objects) == 1
-    far_apart = np.concatenate([left, right + [0.2, 0.0, 0.0]])
-    assert len(separate_objects(far_apart, 0.02, spacing=SPACING)) == 2
+def test_pieces_of_one_object_that_touch_in_the_view_stay_one_object():
+    """A bowl's front rim and its inner back wall: 4 cm apart, one continuing the other."""
+    front = slab((-0.10, 0.00, 0.90), (0.10, 0.04, 1.0))
+    # The back wall starts where the front rim ends in the image (y / z continues), 4 cm
+    # deeper: more than the 2 cm tolerance, less than 2.5 tolerances.
+    back = slab((-0.10, -0.05, 0.94), (0.10, -0.005, 1.0))
+    objects = separate_objects(np.concatenate([front, back]), 0.02, spacing=SPACING)
+    assert [len(o) for o in objects] == [len(front) + len(back)]
+    # The same pieces side by side with background between them in the view: two objects.
+    apart = np.concatenate([front, back + [0.0, -0.04, 0.0]])
+    assert len(separate_objects(apart, 0.02, spacing=SPACING)) == 2
 
 
 def test_no_tolerance_keeps_one_object_and_noise_is_left_out():

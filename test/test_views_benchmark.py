@@ -31,12 +31,12 @@ def test_configurations_are_data_and_unknown_parameters_are_skipped(bench):
     configs = [bench.Config.from_data(label, data) for label, data in bench.CONFIGS.items()]
     assert {'paper', 'node'} <= {c.label for c in configs}
     future = bench.Config.from_data(
-        'future', {'preset': 'node', 'params': {'shape_completion': 'mirror'}, 'up': True}
+        'future', {'preset': 'node', 'params': {'grasp_refinement': 'on'}, 'up': True}
     )
     messages = []
     kept = bench.usable_configs([*configs[:2], future], messages.append)
     assert [c.label for c in kept] == [c.label for c in configs[:2]]
-    assert len(messages) == 1 and "'future'" in messages[0] and 'shape_completion' in messages[0]
+    assert len(messages) == 1 and "'future'" in messages[0] and 'grasp_refinement' in messages[0]
     with pytest.raises(ValueError, match='unknown keys'):
         bench.Config.from_data('typo', {'preset': 'node', 'parms': {}})
     up = bench.Config('up', 'node', {'max_boxes': 4}, up=True)

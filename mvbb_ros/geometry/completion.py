@@ -661,3 +661,11 @@ def complete_view(
         lowest = float(np.min(both @ unit_up))
         parts.append(fill_down(np.concatenate(parts), unit_up, lowest, spacing))
     return CompletedView(np.concatenate(parts), len(pts), method, plane)
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once on a tiny view (see :mod:`mvbb_ros.kernels`)."""
+    grid = np.stack(np.meshgrid(np.linspace(-0.05, 0.05, 6), np.linspace(0.0, 0.1, 6)), -1)
+    front = np.column_stack([grid.reshape(-1, 2), np.full(36, 0.8)])
+    top = front[:, [0, 2, 1]] * [1.0, 1.0, -0.5] + [0.0, 0.0, 0.8]
+    complete_view(np.concatenate([front, top]), method='mirror', up=(0, -1, 0), spacing=0.02)

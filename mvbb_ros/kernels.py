@@ -1,0 +1,75 @@
+"""
+The compiled (numba) kernels: which modules have them, and warming their cache.
+
+numba compiles a kernel on its first call and caches the machine code (``cache=True``) beside
+its module, or in the user's cache directory when the package folder is read-only (a colcon
+install space). :func:`warm_up` calls every kernel module's own ``warm_up()`` on tiny inputs,
+so that the first cloud does not wait for the compiler: ``tools/bootstrap.sh`` runs it once at
+set-up (``python -m mvbb_ros.kernels``), and the node and the command line run it at start and
+say so when something had to be compiled.
+
+A kernel module registers itself by being listed in :data:`KERNEL_MODULES` and defining
+``warm_up() -> None``, which calls each of its kernels once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import importlib
+import sys
+import time
+from types import ModuleType
+
+from numba.core.registry import CPUDispatcher
+
+#: Every module with numba kernels, each defining ``warm_up()``.
+KERNEL_MODULES: tuple[str, ...] = (
+    'mvbb_ros.geometry.completion',
+    'mvbb_ros.geometry.objects',
+)
+
+
+@dataclass(frozen=True)
+class WarmUp:
+    """
+    What warming the kernels took.
+
+    :ivar seconds: wall-clock time of importing the modules and calling every kernel once.
+    :ivar compiled: names of the kernels that had to be compiled (not found in the cache).
+    """
+
+    seconds: float
+    compiled: tuple[str, ...]
+
+
+def _dispatchers(module: ModuleType) -> list[tuple[str, CPUDispatcher]]:
+    return [
+        (f'{module.__name__}.{name}', value)
+        for name, value in vars(module).items()
+        if isinstance(value, CPUDispatcher)
+    ]
+
+
+def warm_up() -> WarmUp:
+    """Import every kernel module and run its kernels once; report what had to be compiled."""
+    start = time.perf_counter()
+    compiled = []
+    for name in KERNEL_MODULES:
+        module = importlib.import_module(name)
+        module.warm_up()
+        compiled += [
+            kernel for kernel, dispatcher in _dispatchers(module) if dispatcher.stats.cache_misses
+        ]
+    return WarmUp(time.perf_counter() - start, tuple(compiled))
+
+
+def main() -> int:
+    """Warm the cache (``python -m mvbb_ros.kernels``); print what it took."""
+    report = warm_up()
+    what = f'compiled {len(report.compiled)} kernels' if report.compiled else 'cache was warm'
+    print(f'mvbb_ros kernels: {what} in {report.seconds:.1f} s')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
