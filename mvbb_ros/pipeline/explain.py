@@ -51,9 +51,14 @@ def empty_grasps_note(result: PipelineResult, settings: PipelineSettings) -> str
         0.08 m (the thinnest box edge is 0.12 m); hypotheses 120 -> occlusion 64 -> width 0'``;
         '' when the result has grasps, or no boxes (its warning says why).
     """
-    if result.decomposition is None or not result.leaves or result.grasps:
+    if not result.leaves or result.grasps:
         return ''
-    stats = grasp_filter_counts(result.decomposition, **asdict(settings.grasps))
+    stats = grasp_filter_counts(
+        result.leaves,
+        up=settings.view.up,
+        sensor_origin=settings.view.viewpoint,
+        **asdict(settings.grasps),
+    )
     thinnest = min(float(box.extents.min()) for box in result.leaves)
     counts = (
         f'hypotheses {stats.hypotheses} -> occlusion {stats.after_occlusion} -> width '
