@@ -184,14 +184,14 @@ def test_one_get_parameters_call_returns_every_value():
 def test_vectors_take_integers_and_empty_arrays():
     graph = Graph(parameter_overrides=[Parameter('up_direction', value=[0, 0, 1])])
     try:
-        assert graph.node.settings.grasps.up == (0.0, 0.0, 1.0)
+        assert graph.node.settings.view.up == (0.0, 0.0, 1.0)
         assert graph.node.get_parameter('up_direction').type_ == Parameter.Type.DOUBLE_ARRAY
         request = SetParameters.Request(
             parameters=[Parameter('up_direction', value=[]).to_parameter_msg()]
         )
         result = _call(graph, SetParameters, 'set_parameters', request).results[0]
         assert result.successful, result.reason
-        assert graph.node.settings.grasps.up is None
+        assert graph.node.settings.view.up is None
         values = _call(
             graph, GetParameters, 'get_parameters', GetParameters.Request(names=['up_direction'])
         ).values

@@ -55,13 +55,22 @@ MIRROR_SAMPLE = 96
 #: Plane positions tried per candidate normal, from the nearest observed point back to one
 #: object size behind the farthest.
 MIRROR_OFFSETS = 25
+#: Positions tried again from the rung before the chosen one to the rung after it.
+MIRROR_REFINE = 17
 #: Candidate normals turn up to this far from the viewing direction (degrees), in these steps;
 #: with an up direction they stay horizontal.
 MIRROR_TURN_DEG = 45.0
 MIRROR_CONE_DEG = 35.0
 MIRROR_STEP_DEG = 9.0
 #: A plane within this share of violations of its normal's best counts as good as the best.
-MIRROR_SLACK = 0.03
+MIRROR_SLACK = 0.0
+#: The observed points' box axes (the object's likely symmetry directions) are taken when the
+#: view refutes them at most this share of the sample more than the best fan normal.
+AXIS_PRIOR = 0.1
+#: ... when they turn from the viewing direction by less than acos of this (75 degrees).
+AXIS_COS = 0.26
+#: A mirror plane must put at least this share of the tested points behind the seen surface.
+MIN_HIDDEN_SHARE = 0.2
 #: Completions within this factor of the most compact one are as good; the one whose plane
 #: faces the sensor most directly wins among them.
 COMPACT_SLACK = 1.1
@@ -270,8 +279,7 @@ class MirrorPlane:
 
     def mirror(self, points: FloatArray) -> FloatArray:
         """Return `points` (N, 3) mirrored about the plane."""
-        heights = (points - self.point) @ self.normal
-        return points - 2.0 * heights[:, None] * self.normal
+        return _mirrored(points, self.normal, self.point)
 
 
 def _horizontal(vector: FloatArray, up: FloatArray) -> FloatArray | None:
@@ -290,7 +298,7 @@ def _candidate_normals(
     With `up`: horizontal normals up to :data:`MIRROR_TURN_DEG` either side of the horizontal
     viewing direction. Without: normals in a cone of :data:`MIRROR_CONE_DEG` around the viewing
     direction. Both add the `axes` (the observed points' box axes, the object's likely symmetry
-    directions) that lie within 60 degrees of the preferred normal, after the others.
+    directions) turned less than ``acos(AXIS_COS)`` from the preferred normal, after the others.
 
     :return: the normals (K, 3), the preferred normal, and how many of the normals are the
         fan's (the rest are box axes).
@@ -323,7 +331,7 @@ def _candidate_normals(
     for axis in extra:
         if axis is not None:
             axis = axis if axis @ preferred >= 0.0 else -axis
-            if axis @ preferred >= 0.5:
+            if axis @ preferred >= AXIS_COS:
                 normals.append(axis)
     return np.array(normals), preferred, fan
 
@@ -387,34 +395,60 @@ def find_mirror_plane(
     size = float(np.max(np.ptp(points, axis=0)))
     steps = np.linspace(0.0, 1.0, MIRROR_OFFSETS)
     planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
-    violations = _mirror_violations(
-        sample,
-        center,
-        np.ascontiguousarray(normals),
-        np.ascontiguousarray(planes),
-        raster.viewpoint,
-        raster.frame,
-        raster.origin,
-        raster.cell,
-        raster.mask,
-        raster.near,
-        spacing,
-    )
-    # Per normal: the nearest plane within the slack of its fewest contradictions.
-    chosen = np.array(
-        [int(np.flatnonzero(row <= row.min() + MIRROR_SLACK)[0]) for row in violations]
-    )
+
+    def refuted(offsets: FloatArray) -> FloatArray:
+        return _mirror_violations(
+            sample,
+            center,
+            np.ascontiguousarray(normals),
+            np.ascontiguousarray(offsets),
+            raster.viewpoint,
+            raster.frame,
+            raster.origin,
+            raster.cell,
+            raster.mask,
+            raster.near,
+            spacing,
+        )
+
+    # Per normal: the nearest plane within the slack of its fewest contradictions, found on a
+    # coarse ladder of positions and then on a fine one around the chosen rung.
+    coarse = refuted(planes)
+    chosen = np.argmax(coarse <= coarse.min(axis=1, keepdims=True) + MIRROR_SLACK, axis=1)
     rows = np.arange(len(normals))
-    bad = violations[rows, chosen]
-    offsets = planes[rows, chosen]
+    last = planes.shape[1] - 1
+    low = planes[rows, np.maximum(chosen - 1, 0)]
+    high = planes[rows, np.minimum(chosen + 1, last)]
+    fine = low[:, None] + np.linspace(0.0, 1.0, MIRROR_REFINE)[None, :] * (high - low)[:, None]
+    refined = refuted(fine)
+    pick = np.argmax(refined <= refined.min(axis=1, keepdims=True) + MIRROR_SLACK, axis=1)
+    bad = refined[rows, pick]
+    offsets = fine[rows, pick]
     # Over the normals: the planes the view refutes least (within two sample points) are
     # plausible. The observed points' box axes, the object's likely symmetry directions, go
     # first when one of them is plausible; otherwise the fan's. Among those, the most compact
     # completion wins (Occam: the least unseen matter), preferring the viewing direction among
     # completions within COMPACT_SLACK of the most compact.
-    plausible = np.flatnonzero(bad <= bad.min() + 2.0 / len(sample))
-    if np.any(plausible >= fan):
-        plausible = plausible[plausible >= fan]
+    # A plane that mirrors the seen side onto itself (one containing the viewing direction)
+    # estimates nothing: a candidate must put some of the sample where the sensor could not see.
+    adds = np.array(
+        [
+            np.mean(
+                raster.hidden(
+                    _mirrored(sample, normals[k], center + offsets[k] * normals[k]), spacing
+                )
+            )
+            for k in range(len(normals))
+        ]
+    )
+    useful = adds >= MIN_HIDDEN_SHARE
+    best = bad[useful].min() if np.any(useful) else bad.min()
+    plausible = np.flatnonzero((bad <= best + 2.0 / len(sample)) & useful)
+    axes_plausible = fan + np.flatnonzero((bad[fan:] <= best + AXIS_PRIOR) & useful[fan:])
+    if len(axes_plausible):
+        plausible = axes_plausible
+    if not len(plausible):
+        plausible = np.array([int(np.argmin(bad))])
     sizes = np.array(
         [
             _completion_size(sample, normals[k], center + offsets[k] * normals[k], up, axes)
@@ -425,6 +459,12 @@ def find_mirror_plane(
     compact = sizes <= COMPACT_SLACK * sizes.min()
     k = int(plausible[compact][np.argmin(turns[compact])])
     return MirrorPlane(normals[k], center + offsets[k] * normals[k], float(bad[k]))
+
+
+def _mirrored(points: FloatArray, normal: FloatArray, point: FloatArray) -> FloatArray:
+    """Return `points` mirrored about the plane through `point` with unit `normal`."""
+    heights = (points - point) @ normal
+    return points - 2.0 * heights[:, None] * normal
 
 
 def _completion_size(
@@ -440,8 +480,7 @@ def _completion_size(
     The area of the footprint across `up` of the sample and its mirror image (a vertical mirror
     keeps heights), or, without `up`, the volume of their box along `axes`.
     """
-    heights = (sample - point) @ normal
-    both = np.concatenate([sample, sample - 2.0 * heights[:, None] * normal])
+    both = np.concatenate([sample, _mirrored(sample, normal, point)])
     if up is None:
         local = both @ np.asarray(axes).T
         return float(np.prod(np.ptp(local, axis=0)))

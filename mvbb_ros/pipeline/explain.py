@@ -22,9 +22,10 @@ def _filter_steps(
 ) -> list[tuple[int, str]]:
     """Return (hypotheses left after the filter, why it removes them), in filter order."""
     grasps = settings.grasps
+    up = settings.view.up
     below = (
-        f'up_direction {list(grasps.up)}'
-        if grasps.up is not None
+        f'up_direction {list(up)}'
+        if up is not None
         else f'support plane {list(grasps.support_plane or ())}'
     )
     return [

@@ -151,11 +151,15 @@ def _setting_value(spec: SettingSpec, value: Any) -> Any:
 
 
 def _our_changes(parameters: Sequence[Parameter]) -> dict[str, Any]:
-    """Return the settings among `parameters` (not e.g. use_sim_time) as setting values."""
+    """
+    Return the settings among `parameters` (not e.g. use_sim_time) as setting values.
+
+    A vector declared with its type but no value yet (see ``_declare_parameters``) is no change.
+    """
     return {
         parameter.name: _setting_value(SPEC_BY_NAME[parameter.name], parameter.value)
         for parameter in parameters
-        if parameter.name in SPEC_BY_NAME
+        if parameter.name in SPEC_BY_NAME and parameter.value is not None
     }
 
 
