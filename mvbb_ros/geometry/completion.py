@@ -47,6 +47,8 @@ COMPLETIONS: tuple[Completion, ...] = get_args(Completion)
 CELLS_PER_SPACING = 1.5
 #: Most raster cells along a side (coarser cells for objects very large for their spacing).
 MAX_RASTER_SIDE = 256
+#: The estimated part keeps one point per cube this many point spacings wide.
+SOLID_CELLS = 1.0
 #: Most samples of an object's estimated part (a coarser step beyond: the solid's bounds are
 #: what the decomposition uses, and they do not need more).
 MAX_SAMPLES = 40_000
@@ -431,16 +433,10 @@ def find_mirror_plane(
     # completions within COMPACT_SLACK of the most compact.
     # A plane that mirrors the seen side onto itself (one containing the viewing direction)
     # estimates nothing: a candidate must put some of the sample where the sensor could not see.
-    adds = np.array(
-        [
-            np.mean(
-                raster.hidden(
-                    _mirrored(sample, normals[k], center + offsets[k] * normals[k]), spacing
-                )
-            )
-            for k in range(len(normals))
-        ]
-    )
+    heights = (sample - center) @ normals.T - offsets  # (M, K): above each chosen plane
+    images = sample[:, None, :] - 2.0 * heights[:, :, None] * normals[None, :, :]
+    hidden = raster.hidden(images.reshape(-1, 3), spacing).reshape(len(sample), -1)
+    adds = hidden.mean(axis=0)
     useful = adds >= MIN_HIDDEN_SHARE
     best = bad[useful].min() if np.any(useful) else bad.min()
     plausible = np.flatnonzero((bad <= best + 2.0 / len(sample)) & useful)
@@ -546,6 +542,39 @@ def _samples(
     return _segment_samples(
         np.ascontiguousarray(starts), np.ascontiguousarray(directions), lengths, step
     )
+
+
+@nb.njit('int64[:](float64[:, :], float64)', cache=True)
+def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
+    """
+    Return the indices of the first point in each occupied cubic cell `cell` wide (sorted).
+
+    The estimated part of a solid is sampled densely along rays that run side by side; one point
+    per cell keeps its shape (the decomposition only needs its bounds and a fair count) at a
+    fraction of the points.
+    """
+    count = points.shape[0]
+    if count == 0:
+        return np.zeros(0, dtype=np.int64)
+    low = np.empty(3)
+    span = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        low[axis] = points[:, axis].min()
+        span[axis] = int((points[:, axis].max() - low[axis]) / cell) + 1
+    keys = np.empty(count, dtype=np.int64)
+    for i in range(count):
+        key = 0
+        for axis in range(3):
+            key = key * span[axis] + int((points[i, axis] - low[axis]) / cell)
+        keys[i] = key
+    order = np.argsort(keys, kind='mergesort')
+    keep = np.empty(count, dtype=np.int64)
+    kept = 0
+    for k in range(count):
+        if k == 0 or keys[order[k]] != keys[order[k - 1]]:
+            keep[kept] = order[k]
+            kept += 1
+    return np.sort(keep[:kept])
 
 
 def _rays(points: FloatArray, viewpoint: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -679,8 +708,9 @@ def complete_view(
     # the object's likely symmetry directions.
     box = minimum_bounding_box(pts)
     if method == 'extrude':
-        solid = np.concatenate([pts, fill_to_box(pts, eye, box, spacing)])
-        return CompletedView(solid, len(pts), method)
+        estimated = fill_to_box(pts, eye, box, spacing)
+        estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
+        return CompletedView(np.concatenate([pts, estimated]), len(pts), method)
     unit_up = None
     if up is not None:
         unit_up = np.asarray(up, dtype=np.float64)
@@ -693,13 +723,15 @@ def complete_view(
     # The space between the seen surface and its mirror image, within the box of the two: rays
     # at the outline must not carry the far side's range past the object's sides.
     both = np.concatenate([pts, far])
-    bounds = minimum_bounding_box(both)
+    bounds = Box.enclosing(both, box.rotation)
     fill = fill_to_far_side(pts, far, raster, spacing)
     parts = [both, fill[bounds.contains(fill, tol=spacing)]]
     if unit_up is not None:
         lowest = float(np.min(both @ unit_up))
         parts.append(fill_down(np.concatenate(parts), unit_up, lowest, spacing))
-    return CompletedView(np.concatenate(parts), len(pts), method, plane)
+    estimated = np.concatenate(parts[1:])
+    estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
+    return CompletedView(np.concatenate([pts, estimated]), len(pts), method, plane)
 
 
 def warm_up() -> None:
