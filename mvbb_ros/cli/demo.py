@@ -36,11 +36,16 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.arrays import Float32Array
-from mvbb_ros.cli.render import render_boxes
+from mvbb_ros.cli.render import Panel, render_panels
 from mvbb_ros.cli.synthetic import make_scene, scene_views
 from mvbb_ros.evaluation.camera import BACKGROUND
 from mvbb_ros.pipeline.decode import read_xyz
-from mvbb_ros.pipeline.settings import parse_assignments, PipelineSettings, settings_from_mapping
+from mvbb_ros.pipeline.settings import (
+    format_assignment,
+    parse_assignments,
+    PipelineSettings,
+    settings_from_mapping,
+)
 
 if TYPE_CHECKING:  # the ROS side is imported when the demo runs (see run_demo)
     from mvbb_ros.ros.demo_graph import DemoListener, OfflineFrame
@@ -51,6 +56,11 @@ DEMO_FRAME = 'demo_camera_optical_frame'
 #: Objects of the demo scene, and the seed of their placement.
 DEMO_KINDS = ('mug', 'can', 'box')
 DEMO_SEED = 3
+#: Views of the demo picture (the cloud is in the camera's optical frame): the camera's own,
+#: and from above the camera looking down its y axis.
+DRAW_VIEWS = ('camera', 'front')
+#: Distance of the demo camera from the middle of the table, metres.
+DEMO_DISTANCE = 0.9
 #: Time between frames in the demo bag, seconds (5 Hz), and the first stamp.
 FRAME_PERIOD_NS = 200_000_000
 FIRST_STAMP_NS = 1_700_000_000 * 1_000_000_000
@@ -113,8 +123,20 @@ def demo_clouds(frames: int, *, seed: int = DEMO_SEED) -> list[tuple[int, Float3
     scene = make_scene(seed, DEMO_KINDS)
     return [
         (FIRST_STAMP_NS + view.index * FRAME_PERIOD_NS, view.points[view.labels != BACKGROUND])
-        for view in scene_views(scene, frames, distance=0.9, seed=seed)
+        for view in scene_views(scene, frames, distance=DEMO_DISTANCE, seed=seed)
     ]
+
+
+def demo_up_direction() -> list[float]:
+    """
+    Return the table's up direction in the demo camera's optical frame.
+
+    The camera circles the table at a fixed height and tilt, so up is the same in every frame;
+    a robot reads it from its TF tree (the base's z axis in the camera frame) and sets
+    ``up_direction``.
+    """
+    view = next(iter(scene_views(make_scene(DEMO_SEED, DEMO_KINDS), 1, distance=DEMO_DISTANCE)))
+    return [round(float(v), 6) for v in view.camera_pose[2, :3]]
 
 
 class _Children:
@@ -216,6 +238,9 @@ def _run(
 
     if frames < 1:
         raise DemoError(f'--frames must be >= 1, got {frames}')
+    if not any(assignment.startswith('up_direction:=') for assignment in assignments):
+        # What a robot's TF gives it: the table's up in the camera frame.
+        assignments = [*assignments, format_assignment('up_direction', demo_up_direction())]
     try:
         settings = settings_from_mapping(parse_assignments(assignments))
     except ValueError as error:
@@ -327,12 +352,23 @@ def _run(
 
 
 def _draw(picture: Path, last: OfflineFrame, settings: PipelineSettings) -> None:
+    """Draw the last frame: one row per object, its points, boxes and best grasps."""
     result = last.result
-    boxes = [] if result is None else result.leaves
-    grasps = [] if result is None else result.grasps
     points = read_xyz(last.cloud)
+    threshold = settings.decomposition.gain_threshold
+    if result is None or not result.objects:
+        title = f'demo frame {last.index}: {len(points)} points, no boxes (t = {threshold:g})'
+        render_panels(picture, [Panel(points, [], title=title)], views=DRAW_VIEWS, frame='data')
+        return
+    panels = []
+    for item in result.objects:
+        leaves = item.decomposition.leaves
+        grasps = [grasp for grasp in result.grasps if grasp.object_index == item.index]
+        observed = item.shape.points[: item.shape.observed]
+        title = f'object {item.index}: {len(leaves)} boxes, {len(grasps)} grasps'
+        panels.append(Panel(observed, leaves, grasps=grasps, title=title))
     title = (
-        f'demo frame {last.index}: {len(points)} points -> {len(boxes)} boxes, '
-        f'{len(grasps)} grasps (t = {settings.decomposition.gain_threshold:g})'
+        f'demo frame {last.index}: {len(points)} points -> {len(result.objects)} objects, '
+        f'{len(result.leaves)} boxes, {len(result.grasps)} grasps (t = {threshold:g})'
     )
-    render_boxes(picture, points, boxes, grasps=grasps, title=title)
+    render_panels(picture, panels, views=DRAW_VIEWS, frame='data', title=title, max_grasps=3)
