@@ -102,6 +102,8 @@ def single_view_figures(shared: Path, out: Path) -> None:
         views=('camera', 'front'),
         frame='data',
         max_grasps=1,
+        max_points=5000,
+        dpi=80,
         title='Real single views: the paper beside the node (objects, hidden side, 1 cm floor)',
     )
     panels = []
@@ -117,6 +119,8 @@ def single_view_figures(shared: Path, out: Path) -> None:
         views=('camera', 'front'),
         frame='data',
         max_grasps=1,
+        max_points=5000,
+        dpi=80,
         title='Virtual views against the whole mesh (the node with the up direction)',
     )
 
