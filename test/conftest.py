@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 import random
 
+from mvbb_ros.kernels import warm_up
 import pytest
 
 # Every test run talks on its own DDS domain, on this machine only, so parallel runs and other
@@ -15,6 +16,13 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Warm the numba kernels' cache, so the nodes that tests start do not compile on a cloud."""
+    warm_up()
+
+
 #: The shared real data (models, scans, bags); override with MVBB_SHARED_DATA.
 SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO_ROOT.parent / 'shared' / 'data'))
 

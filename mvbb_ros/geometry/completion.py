@@ -378,7 +378,8 @@ def find_mirror_plane(
     plane within :data:`MIRROR_SLACK` of its fewest contradictions is kept; over the normals,
     the fewest contradictions win (in steps of the slack), then the plane nearest the sensor (in
     steps of `spacing`: the tightest object the view allows), then the normal nearest the
-    preferred one. An evenly spread sample of :data:`MIRROR_SAMPLE` points is tested.
+    preferred one. An evenly spread sample of :data:`MIRROR_SAMPLE` points (taken in sorted
+    order, so the plane does not depend on the order of the points) is tested.
 
     :param points: (N, 3) observed points.
     :param raster: the view of those points (:func:`view_raster`).
@@ -387,7 +388,9 @@ def find_mirror_plane(
     :param spacing: point spacing in metres (the depth tolerance of the test).
     :return: the plane.
     """
-    sample = np.ascontiguousarray(points[:: max(1, len(points) // MIRROR_SAMPLE)])
+    # An evenly spread sample that does not depend on the order of the points.
+    ordered = points[np.lexsort(points.T[::-1])]
+    sample = np.ascontiguousarray(ordered[:: max(1, len(points) // MIRROR_SAMPLE)])
     center = points.mean(axis=0)
     view = center - raster.viewpoint
     view /= np.linalg.norm(view)
@@ -547,11 +550,12 @@ def _samples(
 @nb.njit('int64[:](float64[:, :], float64)', cache=True)
 def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     """
-    Return the indices of the first point in each occupied cubic cell `cell` wide (sorted).
+    Return the indices of one point per occupied cubic cell `cell` wide (sorted).
 
     The estimated part of a solid is sampled densely along rays that run side by side; one point
     per cell keeps its shape (the decomposition only needs its bounds and a fair count) at a
-    fraction of the points.
+    fraction of the points. The point kept is the cell's lowest in x, then y, then z, so the
+    choice does not depend on the order of the points.
     """
     count = points.shape[0]
     if count == 0:
@@ -570,10 +574,20 @@ def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     order = np.argsort(keys, kind='mergesort')
     keep = np.empty(count, dtype=np.int64)
     kept = 0
-    for k in range(count):
-        if k == 0 or keys[order[k]] != keys[order[k - 1]]:
-            keep[kept] = order[k]
+    best = order[0]
+    for k in range(1, count + 1):
+        if k == count or keys[order[k]] != keys[best]:
+            keep[kept] = best
             kept += 1
+            if k < count:
+                best = order[k]
+            continue
+        candidate = order[k]
+        for axis in range(3):
+            if points[candidate, axis] != points[best, axis]:
+                if points[candidate, axis] < points[best, axis]:
+                    best = candidate
+                break
     return np.sort(keep[:kept])
 
 
