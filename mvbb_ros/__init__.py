@@ -1,8 +1,8 @@
 """
 mvbb_ros: minimum-volume bounding box decomposition and grasp hypotheses.
 
-The geometry is plain numpy/scipy and importable without ROS; :func:`process_points` is the
-node's whole per-cloud pipeline (filters, decomposition, grasps) on a numpy array::
+The geometry is numpy/scipy with numba kernels, importable without ROS; :func:`process_points`
+is the node's whole per-cloud pipeline (filters, decomposition, grasps) on a numpy array::
 
     from mvbb_ros import Box, minimum_bounding_box, decompose, grasp_hypotheses
     from mvbb_ros import PipelineSettings, process_points
@@ -20,6 +20,8 @@ from __future__ import annotations
 import importlib
 from typing import Any, TYPE_CHECKING
 
+# First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it.
+from mvbb_ros import kernel_cache  # noqa: F401
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.fit import minimum_bounding_box

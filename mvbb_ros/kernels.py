@@ -1,5 +1,5 @@
 """
-The compiled (numba) kernels: which modules have them, and warming their cache.
+The compiled (numba) kernels: which modules have them, warming their cache, keeping it fresh.
 
 numba compiles a kernel on its first call and caches the machine code (``cache=True``) beside
 its module, or in the user's cache directory when the package folder is read-only (a colcon
@@ -10,6 +10,9 @@ say so when something had to be compiled.
 
 A kernel module registers itself by being listed in :data:`KERNEL_MODULES` and defining
 ``warm_up() -> None``, which calls each of its kernels once.
+
+A kernel's cache is refreshed when any module it calls into changes, not only its own
+(:mod:`mvbb_ros.kernel_cache`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import sys
 import time
 from types import ModuleType
 
+from numba.core import caching
 from numba.core.registry import CPUDispatcher
 
 #: Every module with numba kernels, each defining ``warm_up()``.
@@ -43,10 +47,13 @@ class WarmUp:
 
 
 def _dispatchers(module: ModuleType) -> list[tuple[str, CPUDispatcher]]:
+    """Return the cached kernels defined in `module` (not its helpers, nor imported kernels)."""
     return [
         (f'{module.__name__}.{name}', value)
         for name, value in vars(module).items()
         if isinstance(value, CPUDispatcher)
+        and value.py_func.__module__ == module.__name__
+        and not isinstance(getattr(value, '_cache', None), caching.NullCache)
     ]
 
 

@@ -1,0 +1,151 @@
+"""
+Fresh numba caches across files: a kernel's cache goes stale when a module it calls into changes.
+
+numba compiles a kernel's jitted callees into the kernel's own machine code, but when it loads
+the cache it checks only the kernel's own source file. A kernel of ``fit.py`` that calls into
+``hull.py`` would keep running the old hull code after an edit of ``hull.py``. For this
+package's kernels numba's cache locator is therefore wrapped (:class:`PackageCacheLocator`): the
+cache lives where numba would put it (``NUMBA_CACHE_DIR``, the module's ``__pycache__``, or the
+user's cache directory when the package folder is read-only), and its source stamp also covers
+every module of the package that imports numba and that the kernel's module imports, directly or
+through other modules of the package (:func:`dependency_digest`). So an edit of ``hull.py``
+recompiles the kernels of ``hull.py``, ``search.py``, ``fit.py`` and of the modules that import
+them, and nothing else.
+
+``mvbb_ros/__init__.py`` imports this module before anything else, so the wrapper is in place
+before any kernel of the package is defined (numba picks a kernel's locator when it is
+decorated); :mod:`mvbb_ros.kernels` lists and warms the kernels.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from pathlib import Path
+import re
+from types import FunctionType
+from typing import Any
+
+from numba.core import caching
+
+#: The package's folder: kernels defined under it get :class:`PackageCacheLocator`.
+PACKAGE_ROOT = Path(__file__).resolve().parent
+
+#: ``from mvbb_ros.x import a, b`` (names possibly in parentheses over lines) and
+#: ``import mvbb_ros.x``, anywhere in a line (imports inside functions count too).
+_FROM_IMPORT = re.compile(r'^\s*from\s+(mvbb_ros[\w.]*)\s+import\s+(\([^)]*\)|[^\n#]*)', re.M)
+_PLAIN_IMPORT = re.compile(r'^\s*import\s+(mvbb_ros[\w.]*)', re.M)
+
+
+def _module_file(name: str) -> Path | None:
+    """Return the source file of package module `name`, or None when it is no module."""
+    parts = name.split('.')[1:]
+    base = PACKAGE_ROOT.joinpath(*parts)
+    for path in (base.with_suffix('.py'), base / '__init__.py'):
+        if path.is_file():
+            return path
+    return None
+
+
+@functools.cache
+def _imported_files(path: Path) -> tuple[Path, ...]:
+    """Return the package's source files that the module at `path` imports (one level)."""
+    text = path.read_text(encoding='utf-8')
+    names = set(_PLAIN_IMPORT.findall(text))
+    for module, imported in _FROM_IMPORT.findall(text):
+        names.add(module)
+        # `from mvbb_ros.geometry import hull as hull_module`: the names may be modules.
+        for item in imported.strip('()').split(','):
+            word = item.split(' as ')[0].strip()
+            if word.isidentifier():
+                names.add(f'{module}.{word}')
+    files = {_module_file(name) for name in names}
+    return tuple(sorted(file for file in files if file is not None and file != path))
+
+
+@functools.cache
+def dependency_digest(path: Path) -> str:
+    """
+    Return a digest of the kernel modules that the module at `path` can call into.
+
+    The module itself and every module of the package it imports, directly or through other
+    modules of the package, whose source imports numba (only those can hold jitted callees):
+    SHA-256 over their package-relative names and contents.
+
+    :param path: a source file of the package.
+    :return: the hex digest.
+    """
+    seen = {path}
+    waiting = [path]
+    while waiting:
+        for file in _imported_files(waiting.pop()):
+            if file not in seen:
+                seen.add(file)
+                waiting.append(file)
+    digest = hashlib.sha256()
+    for file in sorted(seen):
+        text = file.read_bytes()
+        if file == path or b'import numba' in text:
+            digest.update(str(file.relative_to(PACKAGE_ROOT)).encode() + b'\0' + text + b'\0')
+    return digest.hexdigest()
+
+
+class PackageCacheLocator(caching._CacheLocator):
+    """
+    numba's own cache locator for a kernel of this package, with a stamp over its callees' files.
+
+    The cache path and the disambiguator are those of the locator numba would have chosen (its
+    ``NUMBA_CACHE_DIR``, the module's ``__pycache__`` or the user-wide cache directory); the source
+    stamp adds :func:`dependency_digest` to numba's stamp, so a cached kernel is recompiled when
+    any kernel module it can call into has changed.
+    """
+
+    #: Marks the wrapper (a module run twice, as ``__main__`` too, must not install two).
+    wraps_numba_locator = True
+
+    def __init__(self, inner: Any, py_file: str) -> None:
+        self._inner = inner
+        # numba's warnings about uncachable functions name the file through this attribute.
+        self._py_file = py_file
+
+    def ensure_cache_path(self) -> None:
+        """Make sure the cache folder exists and is writable (numba's check)."""
+        self._inner.ensure_cache_path()
+
+    def get_cache_path(self) -> str:
+        """Return the folder numba's own locator chose."""
+        return str(self._inner.get_cache_path())
+
+    def get_source_stamp(self) -> tuple[Any, str]:
+        """Return numba's stamp of the kernel's file and the digest of the files it calls into."""
+        return self._inner.get_source_stamp(), dependency_digest(Path(self._py_file).resolve())
+
+    def get_disambiguator(self) -> str:
+        """Return numba's disambiguator (the function's line number)."""
+        return str(self._inner.get_disambiguator())
+
+    @classmethod
+    def from_function(cls, py_func: FunctionType, py_file: str) -> PackageCacheLocator | None:
+        """Wrap the locator numba would choose for a function of this package; None otherwise."""
+        try:
+            Path(py_file).resolve().relative_to(PACKAGE_ROOT)
+        except (OSError, ValueError):
+            return None
+        others: list[Any] = caching.CacheImpl._locator_classes
+        for other in others:
+            if getattr(other, 'wraps_numba_locator', False):
+                continue
+            inner = other.from_function(py_func, py_file)
+            if inner is not None:
+                return cls(inner, py_file)
+        return None
+
+
+def _install_locator() -> None:
+    """Put :class:`PackageCacheLocator` first among numba's locators (once)."""
+    locators = caching.CacheImpl._locator_classes
+    if not any(getattr(other, 'wraps_numba_locator', False) for other in locators):
+        locators.insert(0, PackageCacheLocator)
+
+
+_install_locator()
