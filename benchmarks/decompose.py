@@ -16,8 +16,9 @@ The model table gives, per model and gain threshold t, our box count next to the
 of ``--repeats`` runs, for the paper's algorithm (``default``) and for each option beyond it:
 ``volume`` (3D split measure) and ``rescore`` (the best ``RESCORE_CUTS`` cuts re-scored by real
 box fits). The scan table gives the counts and volume ratios on every cloud in
-``scans/``. The header names the MVBB implementation used (first docstring line and git blob
-hash of ``mvbb_ros/geometry/fit.py``), because the box counts depend on it.
+``scans/``. The header names the MVBB implementation used (first docstring line of
+``mvbb_ros/geometry/fit.py`` and a digest of it and of the kernel modules it calls into), because
+the box counts depend on it.
 
 Units: the GraspIt! mug is in millimetres, the bunny and the scans in metres, Homer is
 unitless. Nothing here is metric: theta and Theta* are ratios, the grid is relative to each box
@@ -36,13 +37,13 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
-import hashlib
 import os
 from pathlib import Path
 import statistics
 import sys
 import time
 
+from mvbb_ros import kernel_cache
 from mvbb_ros.geometry import decomposition
 from mvbb_ros.geometry import fit as fit_module
 from mvbb_ros.geometry.decomposition import decompose
@@ -68,12 +69,10 @@ VARIANTS: dict[str, dict[str, object]] = {
 
 
 def mvbb_identity() -> str:
-    """Name the MVBB implementation: first docstring line and git blob hash of fit.py."""
-    path = Path(fit_module.__file__)
-    data = path.read_bytes()
-    blob = hashlib.sha1(b'blob %d\0' % len(data) + data).hexdigest()[:12]
+    """Name the MVBB implementation: fit.py's first docstring line and its kernels' digest."""
+    digest = kernel_cache.dependency_digest(Path(fit_module.__file__).resolve())[:12]
     summary = (fit_module.__doc__ or '').strip().splitlines()[0]
-    return f'{summary} (fit.py blob {blob})'
+    return f'{summary} (fit.py and its kernel modules: {digest})'
 
 
 def load(*relative: str) -> np.ndarray:

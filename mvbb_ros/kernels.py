@@ -28,6 +28,10 @@ from numba.core.registry import CPUDispatcher
 
 #: Every module with numba kernels, each defining ``warm_up()``.
 KERNEL_MODULES: tuple[str, ...] = (
+    'mvbb_ros.geometry.rectangle',
+    'mvbb_ros.geometry.hull',
+    'mvbb_ros.geometry.search',
+    'mvbb_ros.geometry.fit',
     'mvbb_ros.geometry.completion',
     'mvbb_ros.geometry.objects',
 )

@@ -123,3 +123,16 @@ def test_dict_round_trip():
     np.testing.assert_allclose(again.rotation, box.rotation, atol=1e-12)
     np.testing.assert_allclose(again.extents, box.extents)
     assert box.to_dict()['volume'] == pytest.approx(box.volume)
+
+
+def test_trusted_boxes_take_their_arrays_over_read_only():
+    """Box.trusted is for kernel outputs: no checks and no copies, but no writable arrays."""
+    center, rotation, extents = np.array([1.0, 2.0, 3.0]), np.eye(3), np.array([0.3, 0.2, 0.1])
+    box = Box.trusted(center, rotation, extents)
+    assert box.center is center and box.rotation is rotation and box.extents is extents
+    assert not any(array.flags.writeable for array in (center, rotation, extents))
+    checked = Box(center=center, rotation=rotation, extents=extents)
+    assert box.volume == checked.volume
+    np.testing.assert_array_equal(box.corners(), checked.corners())
+    with pytest.raises(ValueError, match='read-only'):
+        box.center[0] = 0.0

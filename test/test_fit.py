@@ -1,39 +1,28 @@
 """
-Minimum-volume bounding box (issue 3) and the geometry it stands on.
+Minimum-volume bounding box (issues 3 and 17): the compiled fit and its orientation search.
 
-Sections: input handling; degenerate and extreme clouds; exact answers on known shapes; the 2D
-rectangles (mvbb_ros.geometry.rectangle); the hull and its silhouettes (mvbb_ros.geometry.hull);
-quality on the shared reference clouds; properties (hypothesis).
+Sections: input handling; degenerate and extreme clouds; exact answers on known shapes; one axis
+and the search (mvbb_ros.geometry.search); quality on the shared reference clouds; properties
+(hypothesis). The hull and the 2D rectangles have their own tests (test_hull.py,
+test_rectangle.py).
 """
 
 import json
 
-from conftest import require_shared_data
+from conftest import require_shared_data, SHARED_DATA
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.geometry import fit
+from mvbb_ros.geometry import fit, hull, search
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import (
-    best_rotations_about,
-    grid_axes,
-    minimum_bounding_box,
-    search_hull,
-)
-from mvbb_ros.geometry.hull import (
-    affine_rank,
-    column_extremes,
-    convex_hull,
-    DegenerateHullError,
-    interior_cull,
-)
-from mvbb_ros.geometry.rectangle import convex_hull_2d, min_area_rectangle, min_area_rectangles
+from mvbb_ros.geometry.fit import fit_box, minimum_bounding_box
+from mvbb_ros.geometry.rectangle import min_area_rectangle
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-#: Issue 3: volume within 1 % of the best known, containment to 1e-9 of the box size.
+#: Issues 3 and 17: volume within 1 % of the best known, containment to 1e-9 of the box size.
 QUALITY_BOUND = 1.01
 
 
@@ -41,12 +30,29 @@ def _random_rotation(seed):
     return Rotation.random(random_state=seed).as_matrix()
 
 
+def _fields(box):
+    """Return (centre, rotation, extents) of a Box or of fit_box's tuple."""
+    if isinstance(box, Box):
+        return box.center, box.rotation, box.extents
+    return box
+
+
 def _assert_valid(box, points):
     """Check the contract every box meets: it encloses all points, its axes are a rotation."""
-    assert isinstance(box, Box)
-    assert box.contains(np.asarray(points, dtype=float).reshape(-1, 3)).all()
-    np.testing.assert_allclose(box.rotation.T @ box.rotation, np.eye(3), atol=1e-9)
-    assert np.linalg.det(box.rotation) == pytest.approx(1.0, abs=1e-9)
+    center, rotation, extents = _fields(box)
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    assert center.shape == (3,) and rotation.shape == (3, 3) and extents.shape == (3,)
+    assert np.all(np.isfinite(center)) and np.all(np.isfinite(rotation))
+    assert np.all(extents >= 0.0)
+    np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-9)
+    assert np.linalg.det(rotation) == pytest.approx(1.0, abs=1e-9)
+    # What the fit hands to Box.trusted passes the checked constructor too.
+    checked = Box(center=center, rotation=rotation, extents=extents)
+    assert checked.contains(points).all()
+
+
+def _volume(box):
+    return float(np.prod(_fields(box)[2]))
 
 
 def _cuboid_cloud(seed, extents=(0.3, 0.2, 0.1), inside=500, offset=(0.0, 0.0, 0.0)):
@@ -82,19 +88,32 @@ def test_wrong_shapes_are_rejected(shape):
 
 
 @pytest.mark.parametrize(
-    'knob', [{'sample_size': 0}, {'starts': 0}, {'grid_size': -1}, {'candidates': 2.5}]
+    'knob',
+    [
+        {'sample_size': 0},
+        {'starts': 0},
+        {'grid_size': -1},
+        {'candidates': 2.5},
+        {'seed': True},
+        {'coreset_cells': -1},
+        {'pair_edges': -1},
+    ],
 )
 def test_bad_knobs_are_rejected(knob):
     with pytest.raises(ValueError, match=next(iter(knob))):
         minimum_bounding_box(np.random.default_rng(0).normal(size=(20, 3)), **knob)
 
 
-def test_accepts_a_single_point_vector_lists_and_float32():
+def test_accepts_a_single_point_vector_lists_float32_and_strided_arrays():
     box = minimum_bounding_box([1.0, 2.0, 3.0])
     np.testing.assert_allclose(box.center, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(box.extents, 0.0)
     points = np.random.default_rng(2).normal(size=(200, 3)).astype(np.float32)
     _assert_valid(minimum_bounding_box(points.tolist()), points)
     _assert_valid(minimum_bounding_box(points), points)
+    wide = np.random.default_rng(2).normal(size=(300, 6))
+    _assert_valid(fit_box(wide[:, ::2]), wide[:, ::2])
+    _assert_valid(fit_box(np.asfortranarray(wide[:, :3])), wide[:, :3])
 
 
 def test_same_seed_same_box_and_every_seed_valid():
@@ -104,10 +123,22 @@ def test_same_seed_same_box_and_every_seed_valid():
     np.testing.assert_array_equal(first.center, again.center)
     np.testing.assert_array_equal(first.rotation, again.rotation)
     np.testing.assert_array_equal(first.extents, again.extents)
-    other = minimum_bounding_box(points, seed=6)
-    _assert_valid(other, points)
-    assert other.volume <= QUALITY_BOUND * first.volume
-    assert first.volume <= QUALITY_BOUND * other.volume
+    for seed in (0, 6, 2**40):
+        other = minimum_bounding_box(points, seed=seed)
+        _assert_valid(other, points)
+        assert other.volume <= QUALITY_BOUND * first.volume
+        assert first.volume <= QUALITY_BOUND * other.volume
+
+
+def test_the_box_is_read_only_and_the_plain_arrays_agree():
+    points = _cuboid_cloud(1)
+    box = minimum_bounding_box(points, seed=1)
+    assert isinstance(box, Box)
+    for array in (box.center, box.rotation, box.extents):
+        assert not array.flags.writeable
+    assert box.volume == pytest.approx(0.3 * 0.2 * 0.1, rel=1e-9)
+    for mine, plain in zip(_fields(box), fit_box(points, seed=1), strict=True):
+        np.testing.assert_array_equal(mine, plain)
 
 
 # Degenerate and extreme clouds --------------------------------------------------------------
@@ -126,6 +157,7 @@ def test_two_points_give_a_segment_box():
     box = minimum_bounding_box(np.repeat(points, 3, axis=0))
     _assert_valid(box, points)
     np.testing.assert_allclose(np.sort(box.extents), [0.0, 0.0, 5.0], atol=1e-12)
+    np.testing.assert_array_equal(np.sort(box.extents)[:2], 0.0)
     np.testing.assert_allclose(box.center, points.mean(axis=0))
 
 
@@ -153,22 +185,45 @@ def test_coplanar_points_give_the_plane_minimum_rectangle():
     assert extents[1] * extents[2] == pytest.approx(min_area_rectangle(planar).area, rel=1e-9)
 
 
+@pytest.mark.parametrize('rank', range(4))
+def test_the_rank_of_the_cloud_gives_the_zero_extents(rank):
+    """Points, lines, planes and solids (rotated, off the origin) have 3 - rank zero extents."""
+    base = np.random.default_rng(11).normal(size=(100, 3))
+    points = base * (np.arange(3) < rank) @ _random_rotation(11).T + [1.0, -2.0, 3.0]
+    box = minimum_bounding_box(points)
+    _assert_valid(box, points)
+    assert np.count_nonzero(box.extents == 0.0) == 3 - rank
+
+
 @pytest.mark.parametrize(
     'points',
     [
         np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]]),
         np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]),
         np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0], [3.0, 3.0, 3.0]]),
+        np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+        np.array(np.meshgrid(*[[0.0, 1.0, 2.0]] * 3)).reshape(3, -1).T,
     ],
-    ids=['triangle', 'square', 'four-collinear'],
+    ids=['triangle', 'square', 'four-collinear', 'tetrahedron', 'grid'],
 )
-def test_small_degenerate_clouds_never_raise(points):
+def test_small_and_degenerate_clouds_never_raise(points):
     box = minimum_bounding_box(points)
     _assert_valid(box, points)
-    assert np.min(box.extents) <= 1e-12
+    if np.linalg.matrix_rank(points - points.mean(axis=0)) < 3:
+        assert np.min(box.extents) <= 1e-12
 
 
-@pytest.mark.parametrize('thickness', [1e-13, 1e-9, 1e-6])
+def test_a_tetrahedron_gets_a_box_no_larger_than_its_bounding_cube():
+    # The regular tetrahedron's minimum box is the cube it is inscribed in (faces flush with
+    # pairs of opposite edges, not with facets): edge-pair axes find it.
+    points = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
+    points = points @ _random_rotation(3).T
+    box = minimum_bounding_box(points)
+    _assert_valid(box, points)
+    assert box.volume == pytest.approx(8.0, rel=1e-9)
+
+
+@pytest.mark.parametrize('thickness', [1e-13, 1e-11, 1e-10, 1e-9, 1e-6])
 def test_nearly_flat_clouds_stay_thin(thickness):
     rng = np.random.default_rng(6)
     points = np.column_stack([rng.uniform(size=(2000, 2)), thickness * rng.uniform(size=2000)])
@@ -179,17 +234,21 @@ def test_nearly_flat_clouds_stay_thin(thickness):
     assert box.volume <= QUALITY_BOUND * (thickness + 1e-12)
 
 
-@pytest.mark.parametrize('scale, offset', [(1.0, 1e6), (1e-4, 0.0), (1e-4, 1e6)])
-def test_far_and_tiny_clouds_keep_their_precision(scale, offset):
+@pytest.mark.parametrize(
+    'scale, offset', [(1.0, 1e6), (1e-4, 0.0), (1e-4, 1e6), (1e-100, 0.0), (1e90, 1e91)]
+)
+def test_far_huge_and_tiny_clouds_keep_their_precision(scale, offset):
     base = np.random.default_rng(7).normal(size=(3000, 3)) * [0.3, 0.2, 0.1]
     reference = minimum_bounding_box(base)
     moved = base * scale + offset
     box = minimum_bounding_box(moved)
     _assert_valid(box, moved)
     # Rounding of the coordinates themselves (offset * 1e-16) is all the change allowed.
-    rounding = 8.0 * np.finfo(float).eps * (offset + 1.0) / (scale * reference.extents.min())
-    assert box.volume / scale**3 == pytest.approx(reference.volume, rel=1e-6 + rounding)
-    np.testing.assert_allclose(box.center, reference.center * scale + offset, rtol=0, atol=1e-6)
+    rounding = 8.0 * np.finfo(float).eps * (offset / scale + 1.0) / reference.extents.min()
+    assert np.prod(box.extents / scale) == pytest.approx(reference.volume, rel=1e-6 + rounding)
+    np.testing.assert_allclose(
+        (box.center - offset) / scale, reference.center, rtol=0, atol=1e-6 + 10 * rounding
+    )
 
 
 # Exact answers on known shapes --------------------------------------------------------------
@@ -205,53 +264,102 @@ def test_a_rotated_cuboid_gets_its_own_box(seed):
     np.testing.assert_allclose(box.center, [5.0, -3.0, 1.0], atol=1e-9)
 
 
+def test_a_large_cloud_is_searched_on_its_coreset_and_still_enclosed():
+    rotation = _random_rotation(21)
+    rng = np.random.default_rng(21)
+    # A noisy rotated half-cylinder shell: a partial view, 20k points, far from the origin.
+    angle = rng.uniform(0.0, np.pi, 20_000)
+    shell = np.column_stack([np.cos(angle), np.sin(angle), rng.uniform(-2.0, 2.0, 20_000)])
+    shell += rng.normal(scale=0.01, size=shell.shape)
+    points = shell @ rotation.T * 0.05 + [3.0, -1.0, 0.5]
+    assert len(points) < fit.CORESET_MIN_POINTS
+    coreset_box = minimum_bounding_box(points, coreset_min=len(points))
+    exact_box = minimum_bounding_box(points)
+    _assert_valid(coreset_box, points)
+    _assert_valid(exact_box, points)
+    assert coreset_box.volume <= QUALITY_BOUND * exact_box.volume
+    assert minimum_bounding_box(points, coreset_min=0, coreset_cells=0).volume == exact_box.volume
+
+
+# One axis and the search --------------------------------------------------------------------
+
+
+def _hull_arrays(points):
+    found = hull.convex_hull(points)
+    assert found.status == hull.FULL_RANK
+    vertices = np.ascontiguousarray(points[found.vertices])
+    return vertices, found
+
+
+def _turn(vertices, found, axis):
+    """Return the volume and frame of search.rotate_about for one axis."""
+    work = search.new_work(len(vertices), len(found.normals))
+    frame = np.empty((3, 3))
+    volume = search.rotate_about(
+        vertices, found.normals, found.edges, found.edge_facets, work, *axis, frame
+    )
+    return volume, frame
+
+
+def _brute_force_turn(vertices, axis):
+    """Return the least volume of a box with the axis: the brute-force rectangle of the shadow."""
+    first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    first /= np.linalg.norm(first)
+    plane = vertices @ np.column_stack([first, np.cross(axis, first)])
+    polygon = plane[ConvexHull(plane).vertices]
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    units = edges / np.linalg.norm(edges, axis=1)[:, None]
+    normals = np.column_stack([-units[:, 1], units[:, 0]])
+    areas = np.ptp(units @ polygon.T, axis=1) * np.ptp(normals @ polygon.T, axis=1)
+    return areas.min() * np.ptp(vertices @ axis)
+
+
 def test_best_rotation_about_an_axis_matches_a_fine_angle_scan():
     rng = np.random.default_rng(8)
     points = rng.normal(size=(300, 3)) * [2.0, 1.0, 0.5]
-    hull = convex_hull(points)
-    axes = _random_rotation(8)
-    volumes, frames = best_rotations_about(hull, axes.T)
-    for axis, volume, frame in zip(axes.T, volumes, frames, strict=True):
+    vertices, found = _hull_arrays(points)
+    for axis in np.vstack([_random_rotation(8).T, found.normals[:5]]):
+        volume, frame = _turn(vertices, found, axis)
         np.testing.assert_allclose(frame[:, 0], axis)
         np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
         assert np.linalg.det(frame) == pytest.approx(1.0)
-        local = hull.vertices @ frame
-        assert volume == pytest.approx(np.prod(np.ptp(local, axis=0)), rel=1e-12)
+        assert volume == pytest.approx(np.prod(np.ptp(vertices @ frame, axis=0)), rel=1e-12)
         # Scan the rotation about the axis every 0.01 degree: nothing beats the calipers.
         first, second = frame[:, 1], frame[:, 2]
         angles = np.radians(np.arange(0.0, 90.0, 0.01))
         sides = np.cos(angles)[:, None] * first + np.sin(angles)[:, None] * second
         across = np.cross(axis, sides)
-        height = np.ptp(hull.vertices @ axis)
-        scanned = (
-            height
-            * np.ptp(sides @ hull.vertices.T, axis=1)
-            * np.ptp(across @ hull.vertices.T, axis=1)
-        )
+        height = np.ptp(vertices @ axis)
+        scanned = height * np.ptp(sides @ vertices.T, axis=1) * np.ptp(across @ vertices.T, axis=1)
         assert volume <= scanned.min() * (1.0 + 1e-12)
         assert volume >= scanned.min() * (1.0 - 1e-6)
 
 
 @pytest.mark.parametrize('seed', range(4))
-def test_batched_products_and_calipers_find_the_same_rotations(seed):
-    """Both ways of turning a box about an axis (short and long silhouettes) agree."""
+def test_the_silhouette_gives_the_outline_of_the_shadow(seed):
+    """
+    The silhouette walk (or its 2D-hull fallback) finds the exact best turn about any axis.
+
+    Random axes, facet normals (a facet faces along the axis) and axes across facet normals (the
+    facet is seen edge-on, where rounding decides which side it is on).
+    """
     rng = np.random.default_rng(seed)
-    points = rng.normal(size=(40 + 60 * seed, 3)) * [2.0, 1.0, 0.5]
-    hull = convex_hull(points)
-    axes = np.vstack([hull.normals, _random_rotation(seed).T])
-    volumes, frames = best_rotations_about(hull, axes)
-    expected, _ = fit._caliper_rotations_about(hull, axes)
-    np.testing.assert_allclose(volumes, expected, rtol=1e-9)
-    for frame, volume in zip(frames, volumes, strict=True):
-        np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
-        assert volume == pytest.approx(np.prod(np.ptp(hull.vertices @ frame, axis=0)), rel=1e-9)
+    points = rng.normal(size=(40 + 60 * seed, 3)) * [3.0, 2.0, 1.0]
+    vertices, found = _hull_arrays(points / np.abs(points).max())
+    random_axes = rng.normal(size=(20, 3))
+    edge_on = np.cross(found.normals[:10], rng.normal(size=(10, 3)))
+    for axis in np.vstack([random_axes, edge_on, found.normals[:10]]):
+        axis = axis / np.linalg.norm(axis)
+        volume, frame = _turn(vertices, found, axis)
+        assert volume == pytest.approx(_brute_force_turn(vertices, axis), rel=1e-9)
+        assert volume == pytest.approx(np.prod(np.ptp(vertices @ frame, axis=0)), rel=1e-9)
 
 
 def test_grid_axes_are_distinct_unit_directions():
     frame = _random_rotation(9)
-    assert grid_axes(frame, 0).shape == (0, 3)
+    assert search.grid_axes(frame, 0).shape == (0, 3)
     for size, count in ((1, 13), (2, 49)):
-        directions = grid_axes(frame, size)
+        directions = search.grid_axes(frame, size)
         assert directions.shape == (count, 3)
         np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)
         cosines = np.abs(directions @ directions.T) - np.eye(count)
@@ -262,235 +370,47 @@ def test_grid_axes_are_distinct_unit_directions():
     assert box.volume == pytest.approx(0.3 * 0.2 * 0.1, rel=1e-9)
 
 
-# 2D rectangles ------------------------------------------------------------------------------
-
-
-def _brute_force_rectangle_area(points):
-    """Return the smallest rectangle area flush with a hull edge (Freeman and Shapira)."""
-    scale = np.abs(points).max()
-    polygon = points[ConvexHull(points / scale).vertices] / scale
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    units = edges / np.linalg.norm(edges, axis=1)[:, None]
-    normals = np.column_stack([-units[:, 1], units[:, 0]])
-    areas = np.ptp(units @ polygon.T, axis=1) * np.ptp(normals @ polygon.T, axis=1)
-    return areas.min() * scale**2
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    points=hnp.arrays(
-        np.float64,
-        st.tuples(st.integers(3, 40), st.just(2)),
-        elements=st.floats(-100.0, 100.0, allow_nan=False),
-    )
-)
-def test_min_area_rectangle_matches_brute_force_and_encloses(points):
-    rectangle = min_area_rectangle(points)
-    local = (points - rectangle.center) @ rectangle.axes
-    scale = 1.0 + np.abs(points).max()
-    assert np.all(np.abs(local) <= rectangle.extents / 2.0 + 1e-9 * scale)
-    assert np.linalg.det(rectangle.axes) == pytest.approx(1.0)
-    if len(convex_hull_2d(points)) >= 3:
-        expected = _brute_force_rectangle_area(points)
-        assert rectangle.area == pytest.approx(expected, rel=1e-9, abs=1e-12 * scale**2)
-    else:
-        assert rectangle.area <= 1e-12 * scale**2
-
-
-def test_min_area_rectangle_of_degenerate_planar_points():
-    assert min_area_rectangle([[2.0, 3.0]]).area == 0.0
-    segment = min_area_rectangle([[0.0, 0.0], [3.0, 4.0], [1.5, 2.0], [3.0, 4.0]])
-    np.testing.assert_allclose(segment.extents, [5.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(segment.corners()[[0, 2]], [[0.0, 0.0], [3.0, 4.0]], atol=1e-12)
-    with pytest.raises(ValueError, match='empty'):
-        min_area_rectangle(np.zeros((0, 2)))
-    with pytest.raises(ValueError, match='finite'):
-        min_area_rectangle([[0.0, np.nan]])
-
-
-def test_batched_rectangles_agree_with_one_polygon_at_a_time():
+def test_the_pca_frame_is_a_right_handed_eigenbasis():
     rng = np.random.default_rng(10)
-    points, groups, expected = [], [], []
-    for group in range(200):
-        cloud = rng.normal(size=(rng.integers(3, 30), 2)) * rng.uniform(0.1, 5.0, size=2)
-        polygon = cloud[ConvexHull(cloud).vertices]
-        # Repeats and a midpoint on an edge, shuffled: the silhouettes the 3D search passes.
-        extra = np.vstack([polygon[:2], (polygon[0] + polygon[1]) / 2.0])
-        shuffled = rng.permutation(np.vstack([polygon, extra]))
-        points.append(shuffled)
-        groups.append(np.full(len(shuffled), group))
-        expected.append(_brute_force_rectangle_area(polygon))
-    areas, directions = min_area_rectangles(np.vstack(points), np.concatenate(groups), 201)
-    np.testing.assert_allclose(areas[:200], expected, rtol=1e-9)
-    assert areas[200] == np.inf
-    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)
-
-
-# Hull and silhouettes -----------------------------------------------------------------------
-
-
-def test_affine_rank_tells_points_lines_planes_and_solids_apart():
-    rng = np.random.default_rng(11)
-    rotation = _random_rotation(11)
-    base = rng.normal(size=(100, 3))
-    for rank in range(4):
-        points = base * (np.arange(3) < rank) @ rotation.T
-        found, frame = affine_rank(points)
-        assert found == rank
-        np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
-        assert np.linalg.det(frame) == pytest.approx(1.0)
-
-
-@pytest.mark.parametrize('shape', ['ball', 'sphere', 'cuboid'])
-def test_convex_hull_finds_the_qhull_vertices_with_or_without_the_cull(shape):
-    rng = np.random.default_rng(12)
-    points = rng.normal(size=(20_000, 3))
-    if shape == 'ball':
-        points *= (
-            rng.uniform(size=(len(points), 1)) ** (1.0 / 3.0)
-            / np.linalg.norm(points, axis=1)[:, None]
-        )
-    elif shape == 'sphere':
-        points /= np.linalg.norm(points, axis=1)[:, None]
-        points = points[:3000]
-    else:
-        points = _cuboid_cloud(12, inside=20_000)
-    hull = convex_hull(points)
-    expected = ConvexHull(points)
-    assert {tuple(p) for p in hull.vertices} == {tuple(p) for p in points[expected.vertices]}
-    assert len(hull.normals) == len(hull.areas) == len(hull.facets)
-    assert hull.areas.sum() == pytest.approx(expected.area, rel=1e-9)
-    # Each edge once, shared by exactly two facets (a closed triangulated surface).
-    assert len(hull.edges) == 3 * len(hull.facets) // 2
-    kept = interior_cull(points)
-    assert set(np.flatnonzero(np.isin(np.arange(len(points)), expected.vertices))) <= set(kept)
-    if shape == 'ball':
-        assert len(kept) < len(points) / 2
-
-
-def test_convex_hull_needs_four_points_and_never_raises_a_qhull_error():
-    flat = np.column_stack([np.random.default_rng(13).normal(size=(50, 2)), np.zeros(50)])
-    with pytest.raises(DegenerateHullError, match='at least 4 points'):
-        convex_hull(flat[:3])
-    # Exactly flat: Qhull refuses, its joggled retry builds a sliver of the same points.
-    hull = convex_hull(flat)
-    assert {tuple(p) for p in hull.vertices} <= {tuple(p) for p in flat}
-    np.testing.assert_array_equal(hull.vertices[:, 2], 0.0)
-
-
-def test_silhouette_projects_onto_the_2d_hull():
-    rng = np.random.default_rng(14)
-    points = rng.normal(size=(500, 3)) * [3.0, 2.0, 1.0]
-    hull = convex_hull(points)
-    axes = rng.normal(size=(20, 3))
-    axes /= np.linalg.norm(axes, axis=1)[:, None]
-    mask = hull.silhouette(axes)
-    for axis, on_silhouette in zip(axes, mask, strict=True):
-        first = np.cross(axis, [1.0, 0.0, 0.0])
-        first /= np.linalg.norm(first)
-        plane = np.column_stack([first, np.cross(axis, first)])
-        projected = hull.vertices @ plane
-        outline = set(ConvexHull(projected).vertices)
-        silhouette_vertices = set(hull.edges[on_silhouette].ravel())
-        assert outline <= silhouette_vertices
-
-
-@settings(max_examples=40, deadline=None)
-@given(
-    points=hnp.arrays(
-        np.float64,
-        st.tuples(st.integers(1, 400), st.just(3)),
-        elements=st.floats(-5.0, 5.0, allow_nan=False, allow_infinity=False),
-    ),
-    cells=st.integers(1, 12),
-)
-def test_column_extremes_keeps_exactly_the_extremes_of_every_column(points, cells):
-    kept = column_extremes(points, cells)
-    assert np.all(np.diff(kept) > 0)
-    # Brute force: the column of each point along each axis, and its extremes there.
-    low = points.min(axis=0)
-    span = points.max(axis=0) - low
-    scale = np.divide(cells, span, out=np.zeros(3), where=span > 0)
-    bins = np.minimum(((points - low) * scale).astype(int), cells - 1)
-    expected = set()
-    for axis in range(3):
-        others = [(axis + 1) % 3, (axis + 2) % 3]
-        columns = {}
-        for index, key in enumerate(map(tuple, bins[:, others])):
-            columns.setdefault(key, []).append(index)
-        for members in columns.values():
-            heights = points[members, axis]
-            expected |= {
-                m
-                for m, h in zip(members, heights, strict=True)
-                if h in (heights.max(), heights.min())
-            }
-    assert set(kept.tolist()) == expected
-
-
-def test_the_coreset_search_encloses_every_point_and_keeps_the_volume():
-    """Large clouds are searched on their grid coreset; the box still holds every point."""
-    rotation = _random_rotation(21)
-    rng = np.random.default_rng(21)
-    # A noisy rotated half-cylinder shell: a partial view, 20k points, far from the origin.
-    angle = rng.uniform(0.0, np.pi, 20_000)
-    shell = np.column_stack([np.cos(angle), np.sin(angle), rng.uniform(-2.0, 2.0, 20_000)])
-    shell += rng.normal(scale=0.01, size=shell.shape)
-    points = shell @ rotation.T * 0.05 + [3.0, -1.0, 0.5]
-    assert len(points) >= fit.CORESET_MIN_POINTS
-    coreset_box = minimum_bounding_box(points)
-    exact_box = minimum_bounding_box(points, coreset_cells=0)
-    _assert_valid(coreset_box, points)
-    _assert_valid(exact_box, points)
-    assert coreset_box.volume <= QUALITY_BOUND * exact_box.volume
-    with pytest.raises(ValueError, match='coreset_cells'):
-        minimum_bounding_box(points, coreset_cells=-1)
-
-
-def test_search_hull_is_the_exact_hull_of_small_clouds_and_refuses_flat_ones():
-    points = np.random.default_rng(22).normal(size=(500, 3)) * [3.0, 2.0, 1.0] + 100.0
-    assert len(search_hull(points).vertices) == len(ConvexHull(points).vertices)
-    # A large cloud on an ellipsoid (every point a hull vertex): its coreset keeps far fewer.
-    many = np.random.default_rng(23).normal(size=(8000, 3))
-    many = many / np.linalg.norm(many, axis=1)[:, None] * [3.0, 2.0, 1.0]
-    coreset = search_hull(many)
-    exact = search_hull(many, coreset_cells=0)
-    assert len(coreset.vertices) < len(exact.vertices)
-    # The coreset hull lies inside the exact one and spans it along every PCA axis (the
-    # extreme point along an axis is the extreme of its own column).
-    planes = ConvexHull(exact.vertices).equations
-    assert (coreset.vertices @ planes[:, :3].T + planes[:, 3]).max() <= 1e-12
-    centered = many - many.mean(axis=0)
-    _, pca = affine_rank(centered / np.abs(centered).max())
-    widths = np.ptp(coreset.vertices @ pca, axis=0) / np.ptp(exact.vertices @ pca, axis=0)
-    np.testing.assert_allclose(widths, 1.0, atol=1e-12)
-    with pytest.raises(ValueError, match='coreset_cells must be an integer >= 0'):
-        search_hull(points, coreset_cells=-1)
-    with pytest.raises(DegenerateHullError, match='span 2 dimensions'):
-        search_hull(np.column_stack([points[:, :2], np.zeros(len(points))]))
+    for _ in range(20):
+        matrix = rng.normal(size=(3, 3))
+        matrix = matrix @ matrix.T
+        vectors = fit._symmetric_eigen(matrix)
+        np.testing.assert_allclose(vectors.T @ vectors, np.eye(3), atol=1e-12)
+        assert np.linalg.det(vectors) == pytest.approx(1.0)
+        values = np.diag(vectors.T @ matrix @ vectors)
+        np.testing.assert_allclose(values, np.linalg.eigvalsh(matrix)[::-1], rtol=1e-10)
+        off = vectors.T @ matrix @ vectors - np.diag(values)
+        assert np.abs(off).max() <= 1e-10 * np.abs(values).max()
 
 
 # Quality on the shared reference clouds -----------------------------------------------------
 
+REFERENCE_PATH = SHARED_DATA / 'mvbb_reference.json'
+REFERENCE_KEYS = sorted(json.loads(REFERENCE_PATH.read_text())) if REFERENCE_PATH.exists() else []
 
-def test_volume_within_one_percent_of_best_known_on_every_reference_cloud():
+
+@pytest.mark.parametrize('key', REFERENCE_KEYS or ['missing'])
+def test_volume_within_one_percent_of_best_known_on_every_reference_cloud(key):
     reference_path = require_shared_data('mvbb_reference.json')
     reference = json.loads(reference_path.read_text())
     assert reference, 'the reference file lists no clouds'
-    ratios = {}
-    for key, entry in reference.items():
-        points = np.load(reference_path.parent / key).astype(np.float64)
-        box = minimum_bounding_box(points)
-        _assert_valid(box, points)
-        ratios[key] = box.volume / entry['volume']
-    worst = max(ratios, key=ratios.get)
-    assert ratios[worst] <= QUALITY_BOUND, f'{worst}: {ratios[worst]:.4f} x best known'
+    points = np.load(reference_path.parent / key).astype(np.float64)
+    box = minimum_bounding_box(points)
+    _assert_valid(box, points)
+    ratio = box.volume / reference[key]['volume']
+    assert ratio <= QUALITY_BOUND, f'{key}: {ratio:.4f} x best known'
 
 
 # Properties ---------------------------------------------------------------------------------
 
 coordinates = st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False)
 clouds = hnp.arrays(np.float64, st.tuples(st.integers(1, 60), st.just(3)), elements=coordinates)
+#: Few distinct values: duplicates, collinear and coplanar subsets, integer grids.
+grid_values = st.sampled_from([-2.0, -1.0, 0.0, 0.5, 1.0, 3.0])
+grid_clouds = hnp.arrays(
+    np.float64, st.tuples(st.integers(1, 80), st.just(3)), elements=grid_values
+)
 stretches = st.tuples(*[st.floats(0.01, 10.0)] * 3)
 
 
@@ -509,6 +429,17 @@ def _pca_box(points):
 def test_box_encloses_every_point_with_a_right_handed_frame(points, stretch, seed):
     points = points * np.asarray(stretch)
     _assert_valid(minimum_bounding_box(points, seed=seed), points)
+
+
+@settings(max_examples=80, deadline=None)
+@given(points=grid_clouds, rotation_seed=st.integers(0, 2**16), offset=st.floats(-1e4, 1e4))
+def test_degenerate_rich_clouds_are_enclosed(points, rotation_seed, offset):
+    points = points @ _random_rotation(rotation_seed).T + offset
+    box = minimum_bounding_box(points)
+    _assert_valid(box, points)
+    rank = np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-9 * max(_size(points), 1))
+    if rank < 3:
+        assert np.count_nonzero(box.extents == 0.0) >= 3 - rank
 
 
 @settings(max_examples=60, deadline=None)
@@ -552,3 +483,28 @@ def test_volume_scales_with_the_cube_of_the_scale(points, stretch, scale):
     volume = minimum_bounding_box(points).volume
     scaled = minimum_bounding_box(points * scale).volume / scale**3
     assert _volumes_agree(volume, scaled, _size(points))
+
+
+@settings(max_examples=40, deadline=None)
+@given(points=clouds, stretch=stretches)
+def test_volume_close_to_a_thorough_search(points, stretch):
+    """
+    The default search is close to a far more thorough one.
+
+    A heuristic search: on tiny adversarial clouds a local minimum can cost a few percent (the
+    1 % bound holds on the reference clouds, and for rigid motions and scalings of one cloud).
+    """
+    points = points * np.asarray(stretch)
+    assume(len(points) >= 4)
+    assume(np.linalg.matrix_rank(points - points.mean(axis=0)) == 3)
+    thorough = minimum_bounding_box(
+        points,
+        candidates=500,
+        starts=64,
+        grid_size=2,
+        max_rounds=6,
+        pair_edges=40,
+        exhaustive=10_000,
+    )
+    default = minimum_bounding_box(points)
+    assert default.volume <= 1.1 * thorough.volume + 1e-9 * _size(points) ** 3

@@ -160,14 +160,20 @@ def test_both_voxel_backends_give_the_same_boxes():
 
     assert ours.warning is None and theirs.warning is None
     assert ours.counts == theirs.counts
+    # The same voxel centroids, to rounding (the backends sum them in different orders).
+    mine, other = ours.objects[0].shape.points, theirs.objects[0].shape.points
+    np.testing.assert_allclose(mine[np.lexsort(mine.T)], other[np.lexsort(other.T)], atol=1e-12)
     assert len(ours.leaves) == len(theirs.leaves) == 2
     for mine, other in zip(
         sorted(ours.leaves, key=lambda box: box.volume),
         sorted(theirs.leaves, key=lambda box: box.volume),
         strict=True,
     ):
-        assert mine.volume == pytest.approx(other.volume, rel=1e-6)
-        np.testing.assert_allclose(mine.center, other.center, atol=1e-6)
+        # The same boxes to the fit's precision: on solid blocks the smallest box sits in a flat
+        # valley, and a 1e-16 change of the points can move the search's end by 1e-4 of the
+        # volume (the fit promises 1 % of the best box, not bit-for-bit stability).
+        assert mine.volume == pytest.approx(other.volume, rel=1e-3)
+        np.testing.assert_allclose(mine.center, other.center, atol=1e-4)
     assert set(ours.timings_ms) == {
         'decode',
         'filter',

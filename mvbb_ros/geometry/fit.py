@@ -1,98 +1,456 @@
 """
-Minimum-volume oriented bounding box of a 3D point set.
+Minimum-volume oriented bounding box of a 3D point set, in compiled code (numba).
 
 Huebner et al. (ICRA 2008), Section III-A, fit every box with the approximation of Barequet and
-Har-Peled (2001): find good directions on a random sample of the points, search a small grid of
-directions around the best frame, improve the best box locally, and finally grow it to enclose
-every point. This module follows that scheme on the convex hull (the box of a point set is the
-box of its hull) and uses exact 2D steps to make each one cheap and vectorised:
+Har-Peled (2001): find good directions, search a small grid of directions around the best frame,
+improve the best box locally, and finally grow it to enclose every point. This module follows that
+scheme on the convex hull (the box of a point set is the box of its hull), with exact 2D steps:
+the orientation search (:mod:`mvbb_ros.geometry.search`) turns candidate boxes to their best
+rotation about one axis (the minimum-area rectangle of the hull's silhouette, by rotating
+calipers, :mod:`mvbb_ros.geometry.rectangle`), on candidate axes from hull facets and edge pairs
+(O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
+Har-Peled's grid of directions around the result. The final box is the smallest of the searched
+frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
+worse than either, and always enclosing.
 
-* For a fixed axis ``a``, the best rotation of the box about ``a`` is the minimum-area rectangle
-  of the projection along ``a`` (:mod:`mvbb_ros.geometry.rectangle`). Its sides are flush with
-  projected *silhouette* edges of the hull (:meth:`mvbb_ros.geometry.hull.Hull.silhouette`), so the
-  rectangles of many axes are found at once, by batched rotating calipers on silhouette vertices
-  only.
-* A minimal box has a face flush with a hull facet, or adjacent faces flush with hull edges
-  (O'Rourke 1985). Candidate axes are therefore the facet normals and the normals of planes
-  through two hull edges; a cheap lower bound on the volume (hull width times shadow area) ranks
-  them, and the best ``candidates`` facet normals and half as many edge-pair normals get their
-  exact best box.
-* Local improvement: the best ``starts`` boxes are turned, in turn, to their best rotation about
-  one of their other axes (rotating calipers about b, then c, ...), keeping the better half of
-  them each round; then Barequet and Har-Peled's grid of directions around the best frame is
-  searched, and the polish resumes from any better box it finds.
-* The final box encloses every input point, computed relative to the centroid.
+What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
+(all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
 
-Speed on small hulls (decomposition children, depth-frame clusters) is set by the number of numpy
-calls, not by arithmetic: :func:`best_rotations_about` therefore scores every (axis, silhouette
-edge) pair in a few large products on padded tables rather than in rotating calipers, whenever
-the silhouettes are short (up to 64 edges; longer ones go to the calipers, whose cost grows like
-S log S rather than S^2), and hulls of at most 64 facets skip the ranking step.
+1. Bounding box, PCA of an evenly spread sample of at most 4096 points, every point in the PCA
+   frame centred on the bounding box and scaled to unit size: O(N), three passes.
+2. Clouds of ``coreset_min`` points or more (default 65,536): Barequet and Har-Peled's grid
+   coreset (:func:`mvbb_ros.geometry.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
+   points kept.
+3. Quickhull (:func:`mvbb_ros.geometry.hull.quickhull_kernel`) on all points or the coreset:
+   O(N log H).
+4. The orientation search on the hull (:func:`mvbb_ros.geometry.search.search_kernel`): candidate
+   ranking O(K (H + F)), then 60 to 120 axes at O(F + E + S) each for silhouettes of S vertices.
+5. Enclose every point in each candidate frame: O(N).
 
-Cost, for N points whose hull has H vertices, F ~ 2H facets and E ~ 3H edges:
+Degenerate clouds never reach the hull: the extents in the PCA frame give the affine rank (an
+extent below ``RANK_TOLERANCE`` of the largest is empty). One point or duplicates give a zero box,
+collinear points the PCA frame, coplanar points the plane's minimum-area rectangle. Clouds
+thinner than ``FLAT_SEARCH`` of their size are hulled too, but their hull's facets across the
+thickness are slivers that rounding can spoil, so the plane's rectangle, its normal polished to
+the thinnest direction on the 2D hulls of all points, is a candidate as well. Extents below
+``ZERO_EXTENT`` of the largest are reported as exactly 0.
 
-1. Check, centre, scale and rank the points (PCA): O(N).
-2. Clouds of 2,048 points or more: keep the extremes of the columns of a 32 x 32 grid along each
-   PCA axis (Barequet and Har-Peled's grid coreset; at most 6 144 points, usually a few thousand),
-   then cull the points inside a polytope of up to 26 extreme points, when a probe says it pays
-   (solid clouds; flat-sided scans keep most points): O(N).
-3. Qhull on the survivors: O(N log H).
-4. Rank the facet normals and the 276 edge-pair normals by the bound: O(F + 276) against 96
-   binned area vectors and ``sample_size`` sampled hull vertices.
-5. Best rotation about each axis tried (1.5 ``candidates`` axes, then two per frame and round of
-   the polish, which halves the ``starts`` frames every round, then 13 grid directions per grid
-   round: 101 to 130 axes in all on the reference clouds): O(F + E) to find the silhouette and
-   O(S log S) for the calipers on its S vertices (S grows like sqrt(H) on smooth shapes).
-6. Enclose every point: O(N).
-
-The coreset makes the search approximate where Qhull's hull was exact: the box found on it is
-grown to enclose every point, and on the reference clouds it lost nothing measurable (worst
-1.0042 x best known, against 1.0041 on the exact hull) while the fits took a third less time.
-
-So beyond Qhull the cost grows linearly with H (``benchmarks/mvbb.py --scaling`` measures it):
-only the 24 longest edges are paired, and nothing else enumerates pairs of facets or edges,
-which is what makes exact O(H^2) to O(H^3) methods take seconds on large hulls.
+Compiled code: the kernels (names ending in ``_kernel``) are numba functions with ``cache=True``;
+the helpers they call are compiled into them and not cached on their own (fewer cache files, a
+quicker warm start). Kernels take C-contiguous float64 arrays and int64 knobs; their wrappers
+(:func:`fit_box`, :func:`minimum_bounding_box`) check and convert the input, so one
+specialisation per kernel is compiled and cached. A kernel's cache is refreshed when any module
+it calls into changes (:mod:`mvbb_ros.kernel_cache`).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 
-from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.arrays import FloatArray
+from mvbb_ros.geometry import hull as hull_module
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.hull import (
-    affine_rank,
-    column_extremes,
-    convex_hull,
-    DegenerateHullError,
-    Hull,
-    project,
-)
-from mvbb_ros.geometry.rectangle import min_area_rectangle, min_area_rectangles
+from mvbb_ros.geometry.rectangle import calipers_kernel, hull_2d_kernel
+from mvbb_ros.geometry.search import copy_frame, frame_volume, new_work, polish, search_kernel
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
 
-#: Relative volume gain below which polishing stops (far below the 1 % quality target).
-_POLISH_TOLERANCE = 1e-5
-#: Cube-map cells per face side for binning facet normals in the shadow-area bound.
-_SHADOW_CELLS = 4
-#: Longest hull edges whose pairs give candidate axes (all edges of hulls with fewer).
-_PAIR_EDGES = 24
-#: In-plane length (of unit-scaled hull edges) below which an edge gives no rectangle direction.
-_EDGE_TOLERANCE = 1e-12
-#: Entries per block of the batched rectangle products, to keep temporaries in cache.
-_BLOCK_SIZE = 1 << 15
-#: Longest silhouette (in edges) handled by the batched products; longer ones use calipers.
-_BRUTE_WIDTH = 64
-#: Longest edges paired for candidate axes when every facet normal is tried.
-_SMALL_PAIR_EDGES = 24
-#: Clouds with at least this many points are searched on their grid coreset (``coreset_cells``).
-CORESET_MIN_POINTS = 2048
+#: Relative extent (of the largest) below which a PCA direction counts as empty.
+RANK_TOLERANCE = 1e-10
+#: Relative PCA thickness below which the plane's rectangle is tried beside the hull search.
+FLAT_SEARCH = 1e-4
+#: Relative extent (of the largest) below which a box extent is reported as 0.
+ZERO_EXTENT = 1e-12
+#: Points of the evenly spread sample the PCA is computed on.
+PCA_SAMPLE = 4096
+#: Clouds of at least this many points are hulled on their grid coreset (``coreset_min``).
+CORESET_MIN_POINTS = 65536
+
+
+# Linear algebra -----------------------------------------------------------------------------
+
+
+@nb.njit
+def _symmetric_eigen(matrix: np.ndarray) -> np.ndarray:
+    """
+    Eigen-decompose a symmetric 3x3 matrix by cyclic Jacobi rotations.
+
+    :return: a right-handed rotation (3, 3) whose columns are unit eigenvectors, largest
+        eigenvalue first.
+    """
+    a = np.empty((3, 3))
+    v = np.zeros((3, 3))
+    for i in range(3):
+        v[i, i] = 1.0
+        for j in range(3):
+            a[i, j] = matrix[i, j]
+    for _ in range(64):
+        off = abs(a[0, 1]) + abs(a[0, 2]) + abs(a[1, 2])
+        diagonal = abs(a[0, 0]) + abs(a[1, 1]) + abs(a[2, 2])
+        if off == 0.0 or off <= 1e-18 * diagonal:
+            break
+        for pair in range(3):
+            p = 0 if pair < 2 else 1
+            q = 2 if pair > 0 else 1
+            if a[p, q] == 0.0:
+                continue
+            theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+            t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+            if theta < 0.0:
+                t = -t
+            c = 1.0 / math.sqrt(t * t + 1.0)
+            s = t * c
+            for k in range(3):
+                akp = a[k, p]
+                akq = a[k, q]
+                a[k, p] = c * akp - s * akq
+                a[k, q] = s * akp + c * akq
+            for k in range(3):
+                apk = a[p, k]
+                aqk = a[q, k]
+                a[p, k] = c * apk - s * aqk
+                a[q, k] = s * apk + c * aqk
+            for k in range(3):
+                vkp = v[k, p]
+                vkq = v[k, q]
+                v[k, p] = c * vkp - s * vkq
+                v[k, q] = s * vkp + c * vkq
+    # Columns by decreasing eigenvalue (a three-element sort).
+    order = np.arange(3)
+    for i in range(1, 3):
+        j = i
+        while j > 0 and a[order[j], order[j]] > a[order[j - 1], order[j - 1]]:
+            order[j], order[j - 1] = order[j - 1], order[j]
+            j -= 1
+    vectors = np.empty((3, 3))
+    for j in range(3):
+        for k in range(3):
+            vectors[k, j] = v[k, order[j]]
+    # Right-handed: the third column is the cross product of the first two.
+    vectors[0, 2] = vectors[1, 0] * vectors[2, 1] - vectors[2, 0] * vectors[1, 1]
+    vectors[1, 2] = vectors[2, 0] * vectors[0, 1] - vectors[0, 0] * vectors[2, 1]
+    vectors[2, 2] = vectors[0, 0] * vectors[1, 1] - vectors[1, 0] * vectors[0, 1]
+    return vectors
+
+
+@nb.njit
+def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return the 3x3 product a b (numba's @ needs BLAS through scipy)."""
+    out = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                out[i, j] += a[i, k] * b[k, j]
+    return out
+
+
+# The whole fit ---------------------------------------------------------------------------------
+
+
+@nb.njit
+def _planar_frame(local: np.ndarray, first: int, second: int) -> np.ndarray:
+    """
+    Return the frame of points flat across PCA axes `first` and `second`.
+
+    Its first two columns are the sides of the minimum-area rectangle of the points' coordinates
+    along those axes, the third their cross product (the plane's normal).
+    """
+    count = local.shape[0]
+    x = np.empty(count)
+    y = np.empty(count)
+    for i in range(count):
+        x[i] = local[i, first]
+        y[i] = local[i, second]
+    order = np.arange(count)
+    polygon = np.empty(count + 1, dtype=np.int64)
+    corners = hull_2d_kernel(x, y, order, count, polygon)
+    _, dx, dy = calipers_kernel(x, y, polygon, corners)
+    frame = np.zeros((3, 3))
+    frame[first, 0] = dx
+    frame[second, 0] = dy
+    frame[first, 1] = -dy
+    frame[second, 1] = dx
+    frame[0, 2] = frame[1, 0] * frame[2, 1] - frame[2, 0] * frame[1, 1]
+    frame[1, 2] = frame[2, 0] * frame[0, 1] - frame[0, 0] * frame[2, 1]
+    frame[2, 2] = frame[0, 0] * frame[1, 1] - frame[1, 0] * frame[0, 1]
+    return frame
+
+
+@nb.njit(cache=True)
+def fit_kernel(
+    points: np.ndarray,
+    seed: int,
+    sample_size: int,
+    grid_size: int,
+    candidates: int,
+    starts: int,
+    max_rounds: int,
+    exhaustive: int,
+    pair_edges: int,
+    coreset_cells: int,
+    coreset_min: int,
+    hull_tolerance: float,
+) -> tuple:
+    """
+    Fit the minimum-volume oriented box of finite points (see the module notes).
+
+    :param points: (N, 3) C-contiguous finite points, N >= 1.
+    :return: centre (3,), rotation (3, 3) whose columns are the box axes (right-handed) and full
+        extents (3,), in the units and frame of the points.
+    """
+    count = points.shape[0]
+    low = np.empty(3)
+    high = np.empty(3)
+    for k in range(3):
+        low[k] = points[0, k]
+        high[k] = points[0, k]
+    for i in range(1, count):
+        for k in range(3):
+            value = points[i, k]
+            if value < low[k]:
+                low[k] = value
+            elif value > high[k]:
+                high[k] = value
+    origin = np.empty(3)
+    for k in range(3):
+        origin[k] = 0.5 * (low[k] + high[k])
+    scale = 0.5 * max(high[0] - low[0], high[1] - low[1], high[2] - low[2])
+    if not scale > 0.0:
+        return origin, np.eye(3), np.zeros(3)
+    # PCA of an evenly spread sample, relative to the bounding box centre, at unit scale
+    # (the reciprocal of a subnormal scale overflows: such clouds are first scaled up by a power
+    # of two, which is exact).
+    pre = 2.0**600 if scale < 1e-290 else 1.0
+    inverse = 1.0 / (scale * pre)
+    step = max(1, count // PCA_SAMPLE)
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    taken = 0
+    for i in range(0, count, step):
+        m0 += (points[i, 0] - origin[0]) * pre * inverse
+        m1 += (points[i, 1] - origin[1]) * pre * inverse
+        m2 += (points[i, 2] - origin[2]) * pre * inverse
+        taken += 1
+    m0 /= taken
+    m1 /= taken
+    m2 /= taken
+    covariance = np.zeros((3, 3))
+    for i in range(0, count, step):
+        d0 = (points[i, 0] - origin[0]) * pre * inverse - m0
+        d1 = (points[i, 1] - origin[1]) * pre * inverse - m1
+        d2 = (points[i, 2] - origin[2]) * pre * inverse - m2
+        covariance[0, 0] += d0 * d0
+        covariance[0, 1] += d0 * d1
+        covariance[0, 2] += d0 * d2
+        covariance[1, 1] += d1 * d1
+        covariance[1, 2] += d1 * d2
+        covariance[2, 2] += d2 * d2
+    covariance[1, 0] = covariance[0, 1]
+    covariance[2, 0] = covariance[0, 2]
+    covariance[2, 1] = covariance[1, 2]
+    pca = _symmetric_eigen(covariance)
+    # Every point in the PCA frame, and its box there.
+    local = np.empty((count, 3))
+    local_low = np.full(3, np.inf)
+    local_high = np.full(3, -np.inf)
+    for i in range(count):
+        d0 = (points[i, 0] - origin[0]) * pre * inverse
+        d1 = (points[i, 1] - origin[1]) * pre * inverse
+        d2 = (points[i, 2] - origin[2]) * pre * inverse
+        for k in range(3):
+            value = d0 * pca[0, k] + d1 * pca[1, k] + d2 * pca[2, k]
+            local[i, k] = value
+            local_low[k] = min(local_low[k], value)
+            local_high[k] = max(local_high[k], value)
+    spans = np.empty(3)
+    for k in range(3):
+        spans[k] = local_high[k] - local_low[k]
+    largest = max(spans[0], spans[1], spans[2])
+    rank = 0
+    widest = 0
+    narrowest = 0
+    for k in range(3):
+        if spans[k] > RANK_TOLERANCE * largest:
+            rank += 1
+        if spans[k] > spans[widest]:
+            widest = k
+        if spans[k] < spans[narrowest]:
+            narrowest = k
+    # The two widest PCA axes, for the planar frame.
+    middle_axis = 3 - widest - narrowest if widest != narrowest else (widest + 1) % 3
+    frames = np.zeros((2, 3, 3))
+    used = 0
+    if rank == 2:
+        copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
+        used += 1
+    elif rank == 3 and spans[narrowest] < FLAT_SEARCH * largest:
+        # So thin that the hull's facets across the thickness are slivers: the plane's minimum
+        # rectangle too, its normal tilted to the thinnest direction by the polish on the 2D
+        # hulls of every point (the PCA normal of a noisy slab is off by about thickness /
+        # sqrt(N)); the smaller box of this and the hull search wins.
+        planar = np.empty((1, 3, 3))
+        copy_frame(_planar_frame(local, widest, middle_axis), planar[0])
+        volume = np.array([frame_volume(local, planar[0])])
+        _, frame = polish(
+            local,
+            np.zeros((0, 3)),
+            np.zeros((0, 2), dtype=np.int64),
+            np.zeros((0, 2), dtype=np.int64),
+            new_work(count, 0),
+            planar,
+            volume,
+            max(max_rounds, 3),
+        )
+        copy_frame(frame, frames[used])
+        used += 1
+    if rank == 3:
+        if coreset_cells > 0 and count >= coreset_min:
+            kept = hull_module.column_extremes_kernel(local, local_low, local_high, coreset_cells)
+            searched = np.empty((kept.shape[0], 3))
+            for i in range(kept.shape[0]):
+                for k in range(3):
+                    searched[i, k] = local[kept[i], k]
+        else:
+            searched = local
+        status, hull_ids, _, normals, areas, edges, edge_facets = hull_module.quickhull_kernel(
+            searched, hull_tolerance
+        )
+        if status == hull_module.BROKEN:
+            # No hull: search every point with the PCA axes, the polish and the grid only.
+            _, frame = search_kernel(
+                searched,
+                np.zeros((0, 3)),
+                np.zeros(0),
+                np.zeros((0, 2), dtype=np.int64),
+                np.zeros((0, 2), dtype=np.int64),
+                seed,
+                candidates,
+                pair_edges,
+                sample_size,
+                exhaustive,
+                starts,
+                max_rounds,
+                grid_size,
+            )
+            copy_frame(frame, frames[used])
+            used += 1
+        elif status < 3:
+            if used == 0:
+                copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
+                used += 1
+        else:
+            vertices = np.empty((hull_ids.shape[0], 3))
+            for i in range(hull_ids.shape[0]):
+                for k in range(3):
+                    vertices[i, k] = searched[hull_ids[i], k]
+            _, frame = search_kernel(
+                vertices,
+                normals,
+                areas,
+                edges,
+                edge_facets,
+                seed,
+                candidates,
+                pair_edges,
+                sample_size,
+                exhaustive,
+                starts,
+                max_rounds,
+                grid_size,
+            )
+            copy_frame(frame, frames[used])
+            used += 1
+    return _final_box(local, origin, scale, pca, frames[:used], low, high, local_low, local_high)
+
+
+@nb.njit
+def _final_box(
+    local: np.ndarray,
+    origin: np.ndarray,
+    scale: float,
+    pca: np.ndarray,
+    frames: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    local_low: np.ndarray,
+    local_high: np.ndarray,
+) -> tuple:
+    """
+    Grow each frame's box around every point; return the smallest, or the PCA or axis-aligned box.
+
+    :param local: (N, 3) the points in the PCA frame, centred on `origin`, divided by `scale`.
+    :param frames: (K, 3, 3) searched frames in those coordinates.
+    :param low: (3,) the points' lower corner (world), ``high`` the upper one.
+    :param local_low: (3,) lower corner in the PCA frame, ``local_high`` the upper one.
+    :return: centre, rotation and extents, in world units.
+    """
+    count = frames.shape[0]
+    box_low = np.full((count, 3), np.inf)
+    box_high = np.full((count, 3), -np.inf)
+    for i in range(local.shape[0]):
+        x = local[i, 0]
+        y = local[i, 1]
+        z = local[i, 2]
+        for j in range(count):
+            for k in range(3):
+                value = x * frames[j, 0, k] + y * frames[j, 1, k] + z * frames[j, 2, k]
+                box_low[j, k] = min(box_low[j, k], value)
+                box_high[j, k] = max(box_high[j, k], value)
+    # Volumes compared at unit scale (world volumes of huge clouds overflow).
+    best = -1
+    volume = 1.0
+    aabb_volume = 1.0
+    for k in range(3):
+        volume *= local_high[k] - local_low[k]
+        aabb_volume *= (high[k] - low[k]) / scale
+    for j in range(count):
+        found = 1.0
+        for k in range(3):
+            found *= box_high[j, k] - box_low[j, k]
+        if found <= volume:
+            volume = found
+            best = j
+    extents = np.empty(3)
+    center = np.empty(3)
+    if aabb_volume < volume:
+        rotation = np.eye(3)
+        for k in range(3):
+            extents[k] = high[k] - low[k]
+            center[k] = origin[k]
+    else:
+        side_low = np.empty(3)
+        side_high = np.empty(3)
+        if best < 0:
+            rotation = pca.copy()
+            for k in range(3):
+                side_low[k] = local_low[k]
+                side_high[k] = local_high[k]
+        else:
+            rotation = _matmul(pca, frames[best])
+            for k in range(3):
+                side_low[k] = box_low[best, k]
+                side_high[k] = box_high[best, k]
+        for k in range(3):
+            extents[k] = (side_high[k] - side_low[k]) * scale
+        for j in range(3):
+            offset = 0.0
+            for k in range(3):
+                offset += rotation[j, k] * 0.5 * (side_low[k] + side_high[k])
+            center[j] = origin[j] + scale * offset
+    biggest = max(extents[0], extents[1], extents[2])
+    for k in range(3):
+        if extents[k] <= ZERO_EXTENT * biggest:
+            extents[k] = 0.0
+    return center, rotation, extents
+
+
+# Python API ------------------------------------------------------------------------------------
 
 
 def _as_points(points: ArrayLike) -> FloatArray:
-    """Return `points` as a float (N, 3) array, or raise ValueError saying what is wrong."""
+    """Return `points` as a C-contiguous float (N, 3) array, or raise ValueError saying why."""
     pts = np.asarray(points, dtype=np.float64)
     if pts.shape == (3,):
         pts = pts.reshape(1, 3)
@@ -106,423 +464,73 @@ def _as_points(points: ArrayLike) -> FloatArray:
             f'minimum_bounding_box got {bad} of {len(pts)} points with non-finite coordinates '
             '(NaN or inf); drop them first'
         )
-    return pts
+    return np.ascontiguousarray(pts)
 
 
-def _cross(first: FloatArray, second: FloatArray) -> FloatArray:
-    """Return the cross products of (..., 3) arrays (numpy.cross has a large fixed cost)."""
-    x1, y1, z1 = first[..., 0], first[..., 1], first[..., 2]
-    x2, y2, z2 = second[..., 0], second[..., 1], second[..., 2]
-    return np.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], axis=-1)
-
-
-def _frame_volumes(hull: Hull, frames: FloatArray) -> FloatArray:
-    """Return the volumes (K,) of the boxes of the hull with the frames' axes (K, 3, 3)."""
-    heights = project(frames.transpose(0, 2, 1).reshape(-1, 3), hull.vertex_rows)
-    extents = (heights.max(axis=1) - heights.min(axis=1)).reshape(-1, 3)
-    return np.prod(extents, axis=1)
-
-
-def _frames_about(axes: FloatArray, sides: FloatArray) -> FloatArray:
-    """Return right-handed frames (K, 3, 3) with columns axis, side, axis x side."""
-    return np.stack([axes, sides, _cross(axes, sides)], axis=2)
-
-
-def _plane_bases(axes: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Return two unit vectors (K, 3) each, spanning the planes perpendicular to unit `axes`."""
-    helper = np.zeros_like(axes)
-    helper[np.arange(len(axes)), np.argmin(np.abs(axes), axis=1)] = 1.0
-    first = _cross(axes, helper)
-    first /= np.linalg.norm(first, axis=1)[:, None]
-    return first, _cross(axes, first)
-
-
-def _padded(rows: IndexArray, values: IndexArray, count: int) -> tuple[IndexArray, IndexArray]:
-    """
-    Lay out `values` grouped by `rows` (sorted) as a (count, width) table, one row per group.
-
-    Short rows repeat their group's first value (repeats change no maximum or minimum).
-
-    :param rows: (M,) sorted group of each value, in ``range(count)``.
-    :param values: (M,) values.
-    :param count: number of groups.
-    :return: the table, and the group sizes (count,); an empty group's row holds value 0.
-    """
-    sizes = np.bincount(rows, minlength=count)
-    starts = np.cumsum(sizes) - sizes
-    first = values[np.minimum(starts, len(values) - 1)] if len(values) else np.zeros(count, int)
-    table = np.repeat(np.where(sizes > 0, first, 0)[:, None], max(int(sizes.max()), 1), axis=1)
-    table[rows, np.arange(len(rows)) - starts[rows]] = values
-    return table, sizes
-
-
-def best_rotations_about(hull: Hull, axes: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """
-    For each axis, find the minimum-volume box of the hull that has that axis.
-
-    The rotation about the axis is the minimum-area rectangle of the hull's projection along it,
-    which has a side along a projected edge of that projection's 2D hull (Freeman and Shapira
-    1975): the projected *silhouette* of the hull (:meth:`mvbb_ros.geometry.hull.Hull.silhouette`).
-    So, for every axis ``a`` and every silhouette edge, the edge's direction ``d`` in the plane
-    across ``a`` and ``u = a x d`` give a rectangle spanned by the silhouette vertices' extents
-    along ``d`` and ``u``; the least is exact (up to rounding). All axes are done at once, on
-    tables padded to the longest silhouette: one (K, S, 3) by (K, 3, 2S) product per block of
-    axes, O(K S^2) for silhouettes of S edges, but a fixed, small number of numpy calls.
-
-    :param hull: convex hull of the points.
-    :param axes: (K, 3) unit axes.
-    :return: volumes (K,) and right-handed frames (K, 3, 3) whose first column is the axis.
-    """
-    axes = np.ascontiguousarray(np.asarray(axes, dtype=np.float64).reshape(-1, 3))
-    count = len(axes)
-    axis_ids, edge_ids = np.nonzero(hull.silhouette(axes))
-    edges, edge_sizes = _padded(axis_ids, edge_ids, count)
-    if edges.shape[1] > _BRUTE_WIDTH:
-        return _caliper_rotations_about(hull, axes)
-    # Both ends of every silhouette edge: each silhouette vertex comes twice, which costs less
-    # than finding each once.
-    vertices = hull.edges[edges].reshape(count, -1)
-    # Silhouette edge directions in the plane across each axis, and the directions across them.
-    along = hull.edge_vectors[edges]
-    along -= np.einsum('kse,ke->ks', along, axes)[:, :, None] * axes[:, None, :]
-    lengths = np.sqrt(np.einsum('kse,kse->ks', along, along))
-    usable = lengths > _EDGE_TOLERANCE
-    along /= np.where(usable, lengths, 1.0)[:, :, None]
-    directions = np.concatenate([along, _cross(axes[:, None, :], along)], axis=1)
-    width = edges.shape[1]
-    areas = np.empty((count, width))
-    step = max(1, _BLOCK_SIZE // (2 * width * vertices.shape[1]))
-    for begin in range(0, count, step):
-        block = slice(begin, begin + step)
-        # Heights (S, k, 2S) with the silhouette vertex first: reducing over the first axis
-        # runs on long contiguous rows (over the last, numpy's reductions crawl).
-        # Heights (S, k, 2S) with the silhouette vertex first: reducing over the first axis
-        # runs on long contiguous rows (over the last, numpy's reductions crawl).
-        heights = hull.vertices[vertices[block]] @ directions[block].transpose(0, 2, 1)
-        heights = np.ascontiguousarray(heights.transpose(1, 0, 2))
-        spans = heights.max(axis=0) - heights.min(axis=0)
-        areas[block] = spans[:, :width] * spans[:, width:]
-    areas[~usable] = np.inf
-    best = np.argmin(areas, axis=1)
-    rows = np.arange(count)
-    heights = project(axes, hull.vertex_rows)
-    volumes = areas[rows, best] * (heights.max(axis=1) - heights.min(axis=1))
-    volumes[edge_sizes == 0] = np.inf
-    # Rounding leaves the chosen side a little off the plane across a short edge: square it up.
-    sides = along[rows, best]
-    sides -= np.einsum('kd,kd->k', sides, axes)[:, None] * axes
-    sides /= np.maximum(np.linalg.norm(sides, axis=1), 1e-300)[:, None]
-    return volumes, _frames_about(axes, sides)
-
-
-def _caliper_rotations_about(hull: Hull, axes: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """
-    For each axis, find the minimum-volume box of the hull that has that axis.
-
-    The rotation about the axis is the minimum-area rectangle of the hull's projection along it
-    (exact up to rounding). The 2D hull of that projection is the projected silhouette, so only
-    silhouette vertices are projected, and all axes go through one batched rotating-calipers call
-    (:func:`mvbb_ros.geometry.rectangle.min_area_rectangles`): O(K E) to find the silhouettes, then
-    O(S log S) for their S vertices in all.
-
-    :param hull: convex hull of the points.
-    :param axes: (K, 3) unit axes.
-    :return: volumes (K,) and right-handed frames (K, 3, 3) whose first column is the axis.
-    """
-    axes = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
-    count = len(axes)
-    axis_ids, edge_ids = np.nonzero(hull.silhouette(axes))
-    # Both ends of every silhouette edge, axis by axis: each silhouette vertex comes twice,
-    # and the calipers drop repeats.
-    axis_ids = np.repeat(axis_ids, 2)
-    vertex_ids = hull.edges[edge_ids].ravel()
-    first, second = _plane_bases(axes)
-    # Plane coordinates as complex numbers x + iy (what the batched calipers take).
-    basis = first + 1j * second
-    planar = np.einsum('md,md->m', hull.vertices[vertex_ids], basis[axis_ids])
-    _, directions = min_area_rectangles(planar, axis_ids, count)
-    sides = directions[:, :1] * first + directions[:, 1:] * second
-    frames = _frames_about(axes, sides)
-    return _frame_volumes(hull, frames), frames
-
-
-def _unique_axes(directions: FloatArray) -> FloatArray:
-    """Drop later repeats from unit `directions` (K, 3), a direction and its opposite being one."""
-    parallel = np.abs(directions @ directions.T) > 1.0 - 1e-12
-    repeated = np.triu(parallel, 1).any(axis=0)
-    return directions[~repeated]
-
-
-def _binned_area_vectors(hull: Hull, cells: int = _SHADOW_CELLS) -> FloatArray:
-    """
-    Sum the facet area vectors (area times unit normal) over a cube-map binning of the normals.
-
-    :return: (6 cells^2, 3) summed area vectors (empty bins are zero).
-    """
-    normals = hull.normals
-    dominant = np.argmax(np.abs(normals), axis=1)
-    rows = np.arange(len(normals))
-    major = normals[rows, dominant]
-    cube_face = 2 * dominant + (major < 0.0)
-    # The other two coordinates, divided by the dominant one, lie in [-1, 1] on that cube face.
-    others = np.stack([normals[rows, (dominant + 1) % 3], normals[rows, (dominant + 2) % 3]], 1)
-    cell = np.clip(
-        ((others / np.abs(major)[:, None] + 1.0) * (cells / 2.0)).astype(int), 0, cells - 1
-    )
-    bins = (cube_face * cells + cell[:, 0]) * cells + cell[:, 1]
-    area_vectors = normals * hull.areas[:, None]
-    return np.stack(
-        [np.bincount(bins, weights=area_vectors[:, i], minlength=6 * cells**2) for i in range(3)],
-        axis=1,
-    )
-
-
-def _edge_pair_axes(hull: Hull, count: int) -> FloatArray:
-    """
-    Return the unit normals of the planes spanned by two hull edges, for the longest edges.
-
-    A face can be flush with two hull edges without lying on a facet (for a tetrahedron, with
-    two opposite edges); such faces' normals are candidate axes too.
-
-    :param hull: the hull.
-    :param count: how many of the longest edges to pair (all pairs among them).
-    :return: (P, 3) unit axes (pairs of parallel edges give none).
-    """
-    lengths = np.linalg.norm(hull.edge_vectors, axis=1)
-    longest = np.argsort(-lengths, kind='stable')[:count]
-    directions = hull.edge_vectors[longest] / lengths[longest, None]
-    first, second = np.triu_indices(len(longest), 1)
-    normals = _cross(directions[first], directions[second])
-    norms = np.linalg.norm(normals, axis=1)
-    keep = norms > 1e-9
-    return normals[keep] / norms[keep, None]
-
-
-def _ranked(
-    hull: Hull, axes: FloatArray, count: int, sample: IndexArray, binned: FloatArray
-) -> FloatArray:
-    """Return the `count` distinct `axes` of least volume bound (see :func:`candidate_axes`)."""
-    if not len(axes):
-        return axes
-    shadow = 0.5 * np.abs(project(axes, binned)).sum(axis=1)
-    heights = project(axes, np.ascontiguousarray(hull.vertex_rows[:, sample]))
-    bound = shadow * (heights.max(axis=1) - heights.min(axis=1))
-    # Coplanar facets repeat a normal; look a little deeper than `count` for distinct ones.
-    order = np.argsort(bound, kind='stable')[: 4 * count]
-    return _unique_axes(axes[order])[:count]
-
-
-def candidate_axes(
-    hull: Hull, count: int, sample: IndexArray, pair_edges: int = _PAIR_EDGES
-) -> FloatArray:
-    """
-    Return the most promising box axes: `count` facet normals and `count` / 2 edge-pair normals.
-
-    A minimal box has a face flush with a hull facet, or faces flush with hull edges (O'Rourke
-    1985). Candidates are the facet normals, and the normals of planes spanned by two of the
-    `pair_edges` longest edges (all edges of small hulls; a tetrahedron's box, for one, can have
-    faces flush with two opposite edges). Each kind is ranked on its own by a lower bound on the
-    volume of a box with axis ``n``: the hull's width along ``n`` times the area of its shadow
-    along ``n`` (the projected hull lies inside the box's rectangle), made cheaper and lower
-    still by summing the facet area vectors ``A_f`` over bins of similar normals before taking
-    half the sum of ``|A_f . n|`` (the shadow area), and by measuring the width on a sample of
-    the hull vertices.
-
-    :param hull: convex hull of the points.
-    :param count: how many facet normals to return, at most (and half as many pair normals).
-    :param sample: indices of the hull vertices used for widths.
-    :param pair_edges: longest edges whose pairs give candidate axes.
-    :return: (at most 1.5 count, 3) unit axes.
-    """
-    binned = np.ascontiguousarray(_binned_area_vectors(hull).T)
-    return np.concatenate(
-        [
-            _ranked(hull, hull.normals, count, sample, binned),
-            _ranked(hull, _edge_pair_axes(hull, pair_edges), count // 2, sample, binned),
-        ]
-    )
-
-
-def grid_axes(frame: ArrayLike, grid_size: int) -> FloatArray:
-    """
-    Return Barequet and Har-Peled's grid of directions around a frame.
-
-    The directions ``i a + j b + k c`` for integers ``|i|, |j|, |k| <= grid_size`` (a, b, c the
-    frame's columns), one per line through the origin.
-
-    :param frame: (3, 3) rotation, columns are the axes.
-    :param grid_size: grid half-width (0 gives no direction).
-    :return: (K, 3) unit directions.
-    """
-    steps = range(-grid_size, grid_size + 1)
-    triples = [
-        t
-        for t in itertools.product(steps, repeat=3)
-        if t > (0, 0, 0) and math.gcd(math.gcd(abs(t[0]), abs(t[1])), abs(t[2])) == 1
-    ]
-    if not triples:
-        return np.zeros((0, 3))
-    directions = np.array(triples, dtype=np.float64) @ np.asarray(frame, dtype=np.float64).T
-    return directions / np.linalg.norm(directions, axis=1)[:, None]
-
-
-def polish(hull: Hull, frames: ArrayLike, max_rounds: int) -> tuple[FloatArray, FloatArray]:
-    """
-    Improve boxes by turning each, in turn, to its best rotation about one of its axes.
-
-    The frames come from :func:`best_rotations_about`, so each is already best about its first
-    axis. Every round scores the best rotation about the other two axes of every frame still
-    improving (one batched call) and keeps the better when it is smaller; the axis just turned
-    about then comes first. Each step is exact (rotating calipers), so a volume never increases;
-    a frame stops when its gain falls below a relative 1e-5. After each round the worse half of
-    the frames is dropped (successive halving): every start gets a first step, only the best is
-    followed to the end.
-
-    :param hull: convex hull of the points.
-    :param frames: (K, 3, 3) starting frames (columns are axes).
-    :param max_rounds: most rounds.
-    :return: volumes and frames (at most K, 3, 3) after polishing, smallest volume first.
-    """
-    frames = np.array(frames, dtype=np.float64).reshape(-1, 3, 3)
-    volumes = _frame_volumes(hull, frames)
-    improving = np.ones(len(frames), dtype=bool)
-    for _ in range(max_rounds):
-        active = np.flatnonzero(improving)
-        if not len(active):
-            break
-        axes = frames[active][:, :, 1:].transpose(0, 2, 1).reshape(-1, 3)
-        new_volumes, new_frames = best_rotations_about(hull, axes)
-        new_volumes = new_volumes.reshape(-1, 2)
-        pick = np.argmin(new_volumes, axis=1)
-        rows = np.arange(len(active))
-        best = new_volumes[rows, pick]
-        better = best < volumes[active] * (1.0 - _POLISH_TOLERANCE)
-        chosen = new_frames.reshape(-1, 2, 3, 3)[rows, pick]
-        frames[active[better]] = chosen[better]
-        volumes[active[better]] = best[better]
-        improving[active[~better]] = False
-        order = np.argsort(volumes, kind='stable')[: (len(frames) + 1) // 2]
-        frames, volumes, improving = frames[order], volumes[order], improving[order]
-    order = np.argsort(volumes, kind='stable')
-    return volumes[order], frames[order]
-
-
-def _best_frame(
-    hull: Hull,
-    pca: FloatArray,
-    *,
-    rng: np.random.Generator,
-    sample_size: int,
-    grid_size: int,
-    candidates: int,
-    starts: int,
-    max_rounds: int,
-    exhaustive: int,
-) -> FloatArray:
-    """Return the frame (3, 3) of the best box found for a full-dimensional hull."""
-    size = len(hull.vertices)
-    sample = np.arange(size) if size <= sample_size else rng.choice(size, sample_size, False)
-    if len(hull.normals) <= exhaustive:
-        # Small hulls: every distinct facet normal, the PCA axes and the edge-pair normals of
-        # the longest edges, all in one batched call (cheaper than ranking them).
-        axes = np.concatenate(
-            [_unique_axes(hull.normals), pca.T, _edge_pair_axes(hull, _SMALL_PAIR_EDGES)]
-        )
-    else:
-        axes = candidate_axes(hull, candidates, sample)
-    volumes, frames = best_rotations_about(hull, axes)
-    order = np.argsort(volumes, kind='stable')[:starts]
-    volumes, frames = polish(hull, frames[order], max_rounds)
-    volume, frame = volumes[0], frames[0]
-    # Barequet and Har-Peled's grid of directions around the best frame: when the best box
-    # about one of them is smaller, polish it and look again (the alternating rotations alone
-    # can stop where no single-axis turn helps but a turn about a diagonal does).
-    for _ in range(max_rounds if grid_size > 0 else 0):
-        grid_volumes, grid_frames = best_rotations_about(hull, grid_axes(frame, grid_size))
-        best = int(np.argmin(grid_volumes))
-        if not grid_volumes[best] < volume * (1.0 - _POLISH_TOLERANCE):
-            break
-        volumes, frames = polish(hull, grid_frames[[best]], max_rounds)
-        volume, frame = volumes[0], frames[0]
-    # The PCA and axis-aligned boxes are always candidates, so the result is never worse.
-    fallback = np.stack([pca, np.eye(3)])
-    every = np.concatenate([frame[None], fallback])
-    every_volumes = np.concatenate([[volume], _frame_volumes(hull, fallback)])
-    return every[int(np.argmin(every_volumes))]
-
-
-def _planar_frame(unit: FloatArray, pca: FloatArray) -> FloatArray:
-    """Return the frame (3, 3) of coplanar points: the plane's minimum-area rectangle."""
-    plane = pca[:, :2]
-    rectangle = min_area_rectangle(unit @ plane)
-    first = plane @ rectangle.axes[:, 0]
-    second = plane @ rectangle.axes[:, 1]
-    return np.column_stack([first, second, np.cross(first, second)])
-
-
-def _search_points(unit: FloatArray, pca: FloatArray, coreset_cells: int) -> FloatArray:
-    """Return the points whose hull the search runs on: a grid coreset of large clouds."""
-    if coreset_cells == 0 or len(unit) < CORESET_MIN_POINTS:
-        return unit
-    # The PCA frame's coordinates as (3, N) rows, the layout column_extremes works on.
-    return unit[column_extremes((pca.T @ unit.T).T, coreset_cells)]
-
-
-def _enclosing(origin: FloatArray, centered_rows: FloatArray, frame: FloatArray) -> Box:
-    """Return the smallest box with the frame's axes around points given relative to `origin`."""
-    local = project(frame.T, centered_rows)
-    low = local.min(axis=1)
-    high = local.max(axis=1)
-    return Box(center=origin + frame @ ((low + high) / 2.0), rotation=frame, extents=high - low)
-
-
-def _check_knob(name: str, value: object, low: int) -> None:
-    """Raise ValueError unless `value` is an integer (not a bool) >= `low`."""
+def _check_knob(name: str, value: object, low: int) -> int:
+    """Return `value` as an int; raise ValueError unless it is an integer (not a bool) >= `low`."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
         raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
+    return int(value)
 
 
-def _normalized(
+def fit_box(
     points: ArrayLike,
-) -> tuple[FloatArray, FloatArray, FloatArray | None, int, FloatArray]:
+    *,
+    seed: int = 0,
+    sample_size: int = 200,
+    grid_size: int = 1,
+    candidates: int = 32,
+    starts: int = 8,
+    max_rounds: int = 3,
+    exhaustive: int = 32,
+    pair_edges: int = 12,
+    coreset_cells: int = 32,
+    coreset_min: int = CORESET_MIN_POINTS,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
-    Check `points` and bring them to the coordinates the search works in.
+    Return the minimum-volume oriented box enclosing `points` as plain arrays.
 
-    :return: the centroid (3,); the points relative to it as (3, N) rows; the same scaled to unit
-        size as (N, 3), or None when all points coincide; the affine rank and the PCA frame.
+    The box always encloses every point (to 1e-9 of its size) and has a right-handed rotation;
+    the result is deterministic for a given seed. Degenerate clouds give zero extents where the
+    data has none (see the module notes). The knobs' defaults were chosen on the shared reference
+    clouds (volume within 1 % of the best known) and on children-like clouds (cost).
+
+    :param points: (N, 3) points (a single (3,) point is accepted), N >= 1, finite.
+    :param seed: seed of the random sample of hull vertices used to rank candidate axes.
+    :param sample_size: hull vertices sampled to measure widths in the ranking bound (the paper
+        samples 200 points); the rotations and the polish always use the whole hull.
+    :param grid_size: half-width of Barequet and Har-Peled's grid of directions searched around
+        the best polished frame (13 directions for 1, 49 for 2; 0 turns the grid off; the paper
+        uses 3).
+    :param candidates: facet normals (ranked by the volume bound), and half as many edge-pair
+        normals, whose best box is computed.
+    :param starts: best candidate boxes polished by alternating rotating calipers, halved every
+        round.
+    :param max_rounds: most polishing rounds, and most grid searches.
+    :param exhaustive: hulls with at most this many facets try every distinct facet normal
+        without ranking.
+    :param pair_edges: longest hull edges whose pairs give candidate axes.
+    :param coreset_cells: columns per side of the grid coreset for large clouds (0: never).
+    :param coreset_min: clouds of at least this many points are hulled on their grid coreset;
+        smaller ones on all points (the coreset costs up to 1 % of volume on the bunny scans).
+    :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
+        the units and frame of the points.
+    :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
-    pts = _as_points(points)
-    # Everything runs on coordinates relative to the centroid (and scaled to unit size for
-    # Qhull), which keeps far-away and tiny clouds precise.
-    rows = np.ascontiguousarray(pts.T)
-    origin = rows.mean(axis=1)
-    centered = rows - origin[:, None]
-    scale = float(np.max(np.abs(centered)))
-    if scale == 0.0:
-        return origin, centered, None, 0, np.eye(3)
-    unit = (centered / scale).T
-    rank, pca = affine_rank(unit)
-    return origin, centered, unit, rank, pca
-
-
-def search_hull(points: ArrayLike, *, coreset_cells: int = 32) -> Hull:
-    """
-    Return the convex hull that :func:`minimum_bounding_box` searches for `points`.
-
-    Everything a fit does before its search (checks, centring, PCA, the grid coreset, the cull
-    and Qhull), in the centred unit-size coordinates the search uses: the cost floor of a fit,
-    which ``benchmarks/mvbb.py`` times beside the whole fit.
-
-    :param points: (N, 3) finite points spanning three dimensions.
-    :param coreset_cells: as for :func:`minimum_bounding_box`.
-    :return: the hull.
-    :raises DegenerateHullError: when the points span fewer than three dimensions.
-    """
-    _check_knob('coreset_cells', coreset_cells, 0)
-    _, _, unit, rank, pca = _normalized(points)
-    if unit is None or rank < 3:
-        raise DegenerateHullError(f'the points span {rank} dimensions, a hull needs 3')
-    return convex_hull(_search_points(unit, pca, coreset_cells))
+    knobs = (
+        _check_knob('seed', seed, 0) & (2**63 - 1),
+        _check_knob('sample_size', sample_size, 1),
+        _check_knob('grid_size', grid_size, 0),
+        _check_knob('candidates', candidates, 1),
+        _check_knob('starts', starts, 1),
+        _check_knob('max_rounds', max_rounds, 0),
+        _check_knob('exhaustive', exhaustive, 0),
+        _check_knob('pair_edges', pair_edges, 0),
+        _check_knob('coreset_cells', coreset_cells, 0),
+        _check_knob('coreset_min', coreset_min, 0),
+    )
+    return fit_kernel(_as_points(points), *knobs, hull_module.HULL_TOLERANCE)
 
 
 def minimum_bounding_box(
@@ -531,77 +539,59 @@ def minimum_bounding_box(
     seed: int = 0,
     sample_size: int = 200,
     grid_size: int = 1,
-    candidates: int = 48,
+    candidates: int = 32,
     starts: int = 8,
     max_rounds: int = 3,
-    exhaustive: int = 64,
+    exhaustive: int = 32,
+    pair_edges: int = 12,
     coreset_cells: int = 32,
+    coreset_min: int = CORESET_MIN_POINTS,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
 
-    The box always encloses every point (to 1e-9 of its size) and has a right-handed rotation;
-    the result is deterministic for a given seed. Degenerate clouds never reach Qhull: one point
-    or duplicates give a zero-size box, collinear points a box with extents (length, 0, 0),
-    coplanar points the plane's minimum-area rectangle with zero thickness. Coordinates are
-    centred and scaled internally, so clouds far from the origin or tiny keep their precision.
-    On the shared reference clouds the volume is within 0.5 % of the best known (see
-    ``benchmarks/mvbb.py``); the knobs' defaults were chosen there, by measurement.
+    :func:`fit_box` as a :class:`~mvbb_ros.geometry.box.Box` (same knobs). The box always
+    encloses every point (to 1e-9 of its size) and has a right-handed rotation; the result is
+    deterministic for a given seed. Degenerate clouds never fail: one point or duplicates give a
+    zero-size box, collinear points a box with extents (length, 0, 0), coplanar points the
+    plane's minimum-area rectangle with zero thickness. Coordinates are centred and scaled
+    internally, so clouds far from the origin, huge or tiny keep their precision. On the shared
+    reference clouds the volume is within 0.4 % of the best known (``benchmarks/mvbb.py``).
 
     :param points: (N, 3) points (a single (3,) point is accepted), N >= 1, finite.
-    :param seed: seed of the random sample of hull vertices.
-    :param sample_size: hull vertices sampled to rank the facet normals (the paper samples 200
-        points); the rotations and the polish always use the full hull.
-    :param grid_size: half-width of Barequet and Har-Peled's grid of directions searched around
-        the best polished frame (the paper uses 3; 0 turns the grid off).
-    :param candidates: facet normals, and half as many edge-pair normals, (ranked by a volume
-        lower bound) whose best box is computed.
-    :param starts: best boxes polished by alternating rotating calipers, halved every round.
-    :param max_rounds: most polishing rounds, and most grid searches (more than 3 changed no
-        box on the reference clouds, their decomposition children or small random clouds).
-    :param exhaustive: hulls with at most this many facets try every distinct facet normal (and
-        the PCA axes and the edge-pair normals) in one batched call instead of ranking them.
-    :param coreset_cells: clouds of 2,048 points or more are searched on the column extremes of
-        a ``coreset_cells``-square grid in their PCA frame (Barequet and Har-Peled's grid
-        coreset, :func:`mvbb_ros.geometry.hull.column_extremes`) instead of all their points; the
-        box is still grown to enclose every point. 0 searches the exact hull of all points.
+    :param seed: seed of the random sample of hull vertices used to rank candidate axes.
+    :param sample_size: see :func:`fit_box`.
+    :param grid_size: see :func:`fit_box`.
+    :param candidates: see :func:`fit_box`.
+    :param starts: see :func:`fit_box`.
+    :param max_rounds: see :func:`fit_box`.
+    :param exhaustive: see :func:`fit_box`.
+    :param pair_edges: see :func:`fit_box`.
+    :param coreset_cells: see :func:`fit_box`.
+    :param coreset_min: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
-    for name, value, low in (
-        ('sample_size', sample_size, 1),
-        ('grid_size', grid_size, 0),
-        ('candidates', candidates, 1),
-        ('starts', starts, 1),
-        ('max_rounds', max_rounds, 0),
-        ('exhaustive', exhaustive, 0),
-        ('coreset_cells', coreset_cells, 0),
-    ):
-        _check_knob(name, value, low)
-    origin, centered, unit, rank, pca = _normalized(points)
-    if unit is None:
-        return _enclosing(origin, centered, np.eye(3))
-    if rank == 0:
-        frame = np.eye(3)
-    elif rank == 1:
-        frame = pca
-    elif rank == 2:
-        frame = _planar_frame(unit, pca)
-    else:
-        try:
-            hull = convex_hull(_search_points(unit, pca, int(coreset_cells)))
-        except DegenerateHullError:
-            frame = _planar_frame(unit, pca)
-        else:
-            frame = _best_frame(
-                hull,
-                pca,
-                rng=np.random.default_rng(seed),
-                sample_size=int(sample_size),
-                grid_size=int(grid_size),
-                candidates=int(candidates),
-                starts=int(starts),
-                max_rounds=int(max_rounds),
-                exhaustive=int(exhaustive),
-            )
-    return _enclosing(origin, centered, frame)
+    center, rotation, extents = fit_box(
+        points,
+        seed=seed,
+        sample_size=sample_size,
+        grid_size=grid_size,
+        candidates=candidates,
+        starts=starts,
+        max_rounds=max_rounds,
+        exhaustive=exhaustive,
+        pair_edges=pair_edges,
+        coreset_cells=coreset_cells,
+        coreset_min=coreset_min,
+    )
+    # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
+    return Box.trusted(center, rotation, extents)
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once on tiny clouds (see :mod:`mvbb_ros.kernels`)."""
+    rng = np.random.default_rng(0)
+    for points in (rng.normal(size=(30, 3)), rng.normal(size=(2, 3)), np.zeros((1, 3))):
+        fit_box(points)
+    fit_box(rng.normal(size=(200, 3)), coreset_min=100)

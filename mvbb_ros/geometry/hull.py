@@ -1,292 +1,680 @@
 """
-Convex hull of a 3D point set, with the adjacency the bounding-box search needs.
+Convex hull of a 3D point set in compiled code: quickhull with adjacency, and a grid coreset.
 
-The minimum box of a point set is the minimum box of its convex hull, so the search only looks
-at hull vertices. Besides vertices and facets, the search needs each hull edge with its two
-facets: an edge whose facets face opposite ways along an axis lies on the *silhouette* (shadow
-boundary) of the hull seen along that axis, and the silhouette is what projects onto the 2D hull
-of the projection (rotating calipers about that axis work on it alone).
+The minimum box of a point set is the minimum box of its convex hull, so the box search
+(:mod:`mvbb_ros.geometry.search`) only looks at hull vertices, facet normals and edges.
+:func:`quickhull_kernel` builds a triangulated hull with the neighbour of every facet across each
+of its edges (Barber, Dobkin and Huhdanpaa's quickhull: repeatedly add the point farthest above a
+facet, replace the facets it sees by a fan to their horizon, and hand the points those facets
+held to the new ones).
 
-Large clouds are first thinned by an exact cull (:func:`interior_cull`). Degenerate input
-(coincident, collinear or coplanar points) has no 3D hull: :func:`affine_rank` tells it apart
-beforehand. :func:`convex_hull` never lets a Qhull error out: it retries with joggled input and
-raises :class:`DegenerateHullError` (a :class:`ValueError`) when even that fails.
+Robustness comes from these rules rather than from exact arithmetic, because the box search only
+needs a hull that is right to rounding (the final box is grown around every input point):
+
+* the first tetrahedron is oriented by one decision, and counts as flat (rank 2) unless each of
+  its facets has the opposite corner strictly below it;
+* a point counts as outside a facet only when it lies more than ``tolerance`` (relative to the
+  cloud's size) above the facet's plane; points within it are treated as inside and dropped;
+* the facets a new point sees are found from the facet it lies above, through neighbours it lies
+  above or within the tolerance of (so coplanar facets are replaced, not folded);
+* before a point is added, those facets must meet the rest of the hull along one simple closed
+  horizon, and every new facet must have a normal that faces away from the first tetrahedron's
+  centroid. When rounding breaks any of these (nearly coplanar facets seen at a grazing angle),
+  the point is dropped instead: the hull stays a closed, outward-facing triangulated surface.
+
+So :func:`quickhull_kernel` never raises and never loops: every step adds or drops one point.
+Inputs that span fewer than three dimensions (to the tolerance) return their affine rank instead
+of a hull. What rounding can still do: on clouds thinner than about 1e-5 of their size with many
+exactly coplanar points, points coplanar with sliver facets may be dropped although they stick
+out (measured on fuzzed grids; :mod:`mvbb_ros.geometry.fit` searches such clouds on their plane
+as well).
+
+:func:`column_extremes_kernel` is Barequet and Har-Peled's grid coreset: the highest and lowest
+point of every column of a grid, along each axis. Large clouds are hulled on it (every point is
+then within one column width of the coreset's hull, across the column).
+
+Cost: O(N) for the coreset; quickhull O(N log H) expected for N points and H hull vertices (about
+40 ns a point on the Kinect scans, 0.5 to 1 microsecond per hull vertex).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-import itertools
+import math
+from typing import NamedTuple
 
-from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
+from mvbb_ros.arrays import FloatArray, IndexArray
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import ConvexHull, QhullError
 
-#: Relative singular value (of the centred points) below which a direction counts as empty.
-RANK_TOLERANCE = 1e-10
-#: Absolute slack on the sign of (unit normal . unit axis) when testing silhouette edges.
-#: Extra edges only add candidates; a missed edge could lose the optimum, so err on inclusion.
-SILHOUETTE_TOLERANCE = 1e-9
-#: Clouds with at least this many points are culled (:func:`interior_cull`) before Qhull.
-CULL_MIN_POINTS = 2048
-
-#: Points per block in the cull, to keep temporaries small.
-_CULL_BLOCK = 16384
-#: Points whose extremes span the inner polytope (an evenly spread subset of larger clouds).
-_CULL_SUBSET = 8192
-#: Points probed to decide whether the cull pays, and the kept fraction above which it does not.
-_CULL_PROBE = 512
-_CULL_WORTHWHILE = 0.6
-#: Clouds with at least this many points are culled with all 13 directions, smaller ones with 7.
-_CULL_FINE_POINTS = 65536
-#: The 13 directions of a cube's corner, face and edge axes (one sign each), in that order.
-_CUBE_AXES = np.array(
-    [d for d in itertools.product((-1, 0, 1), repeat=3) if d > (0, 0, 0)],
-    dtype=np.float64,
-)
-_CUBE_AXES = _CUBE_AXES[np.argsort(np.count_nonzero(_CUBE_AXES, axis=1) % 3, kind='stable')]
-_CULL_DIRECTIONS = _CUBE_AXES / np.linalg.norm(_CUBE_AXES, axis=1)[:, None]
+#: Height above a facet (relative to the largest coordinate) below which a point is inside.
+HULL_TOLERANCE = 1e-11
+#: Status of :func:`quickhull_kernel` for a hull (the affine rank, 0 to 2, for flat input).
+FULL_RANK = 3
+#: Status of :func:`quickhull_kernel` when no consistent hull came out (never seen; a guard).
+BROKEN = -1
 
 
-class DegenerateHullError(ValueError):
-    """The points span fewer than three dimensions (or Qhull could not build a 3D hull)."""
-
-
-@dataclass(frozen=True, eq=False)
-class Hull:
+class Hull(NamedTuple):
     """
-    Triangulated convex hull of 3D points.
+    Triangulated convex hull, as plain arrays.
 
-    :param vertices: (H, 3) hull vertex coordinates.
-    :param facets: (F, 3) vertex indices of each triangular facet.
+    :param status: 3 for a hull; 0, 1 or 2 when the points span only that many dimensions, -1
+        when rounding left no consistent hull (a guard; all other fields are then empty).
+    :param vertices: (H,) indices of the hull vertices in the input points.
+    :param facets: (F, 3) hull-vertex indices (into ``vertices``) of each facet, counter-clockwise
+        seen from outside.
     :param normals: (F, 3) outward unit facet normals.
     :param areas: (F,) facet areas.
-    :param edges: (E, 2) vertex indices of each hull edge (each edge once).
-    :param edge_facets: (E, 2) indices of the two facets that share each edge.
-
-    Derived on construction: ``vertex_rows`` (3, H) and ``normal_rows`` (3, F), the vertex and
-    normal coordinates as rows (reductions then run along contiguous memory); ``edge_ends``
-    (E, 2, 3), both ends of each edge; ``edge_vectors`` (E, 3), from the first end to the second.
+    :param edges: (E, 2) hull-vertex indices of each edge, each edge once (E = 3 F / 2).
+    :param edge_facets: (E, 2) the two facets that share each edge.
     """
 
-    vertices: FloatArray
+    status: int
+    vertices: IndexArray
     facets: IndexArray
     normals: FloatArray
     areas: FloatArray
     edges: IndexArray
     edge_facets: IndexArray
-    vertex_rows: FloatArray = field(init=False, repr=False)
-    normal_rows: FloatArray = field(init=False, repr=False)
-    edge_ends: FloatArray = field(init=False, repr=False)
-    edge_vectors: FloatArray = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        ends = self.vertices[self.edges]
-        object.__setattr__(self, 'vertex_rows', np.ascontiguousarray(self.vertices.T))
-        object.__setattr__(self, 'normal_rows', np.ascontiguousarray(self.normals.T))
-        object.__setattr__(self, 'edge_ends', ends)
-        object.__setattr__(self, 'edge_vectors', ends[:, 1] - ends[:, 0])
-
-    def silhouette(self, axes: ArrayLike) -> BoolArray:
-        """
-        Tell which edges lie on the silhouette of the hull seen along each axis.
-
-        An edge is on the silhouette of axis ``a`` when its two facet normals ``n1, n2`` have
-        ``(n1 . a) (n2 . a) <= 0`` and not both ``n . a = 0`` (with
-        :data:`SILHOUETTE_TOLERANCE`). Every vertex of the 2D hull of the projection along ``a``
-        is an end of such an edge, and every 2D hull edge is the projection of one or lies on
-        the projection of one.
-
-        :param axes: (K, 3) unit axes.
-        :return: (K, E) mask.
-        """
-        facing = project(axes, self.normal_rows)
-        # Classify each facet as facing forward (+1), backward (-1) or sideways (0) along each
-        # axis: the rule above holds exactly when an edge's two facets are classed differently.
-        side = (facing > SILHOUETTE_TOLERANCE).view(np.int8) - (
-            facing < -SILHOUETTE_TOLERANCE
-        ).view(np.int8)
-        return side[:, self.edge_facets[:, 0]] != side[:, self.edge_facets[:, 1]]
 
 
-def project(directions: ArrayLike, rows: FloatArray) -> FloatArray:
+@nb.njit
+def _grow_rows(array: np.ndarray, rows: int) -> np.ndarray:
+    """Return a copy of a 2D array with room for `rows` rows (the first ones copied)."""
+    out = np.empty((rows, array.shape[1]), dtype=array.dtype)
+    for i in range(array.shape[0]):
+        for k in range(array.shape[1]):
+            out[i, k] = array[i, k]
+    return out
+
+
+@nb.njit
+def _grow(array: np.ndarray, size: int) -> np.ndarray:
+    """Return a copy of a 1D array with room for `size` entries (the first ones copied)."""
+    out = np.empty(size, dtype=array.dtype)
+    for i in range(array.shape[0]):
+        out[i] = array[i]
+    return out
+
+
+@nb.njit
+def _plane(points: np.ndarray, a: int, b: int, c: int, out: np.ndarray, row: int) -> bool:
     """
-    Return the heights (K, N) of points along directions.
+    Write the plane of triangle (a, b, c) into ``out[row]``: unit normal and offset.
 
-    numpy's own einsum loop rather than a BLAS product: with an inner size of 3 these products
-    are memory-bound, and multithreaded BLAS makes them many times slower, unpredictably, on a
-    busy machine.
-
-    :param directions: (K, 3) directions.
-    :param rows: (3, N) point coordinates as rows (x, y, z).
-    :return: (K, N) dot products.
+    :return: False when the triangle has no normal (its vertices are collinear in floating
+        point).
     """
-    return np.einsum('kd,dn->kn', np.asarray(directions, dtype=np.float64), rows)
+    ux = points[b, 0] - points[a, 0]
+    uy = points[b, 1] - points[a, 1]
+    uz = points[b, 2] - points[a, 2]
+    vx = points[c, 0] - points[a, 0]
+    vy = points[c, 1] - points[a, 1]
+    vz = points[c, 2] - points[a, 2]
+    nx = uy * vz - uz * vy
+    ny = uz * vx - ux * vz
+    nz = ux * vy - uy * vx
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not norm > 1e-300:
+        return False
+    nx /= norm
+    ny /= norm
+    nz /= norm
+    out[row, 0] = nx
+    out[row, 1] = ny
+    out[row, 2] = nz
+    # The offset through the centroid rounds more evenly than through one corner.
+    out[row, 3] = (
+        nx * (points[a, 0] + points[b, 0] + points[c, 0])
+        + ny * (points[a, 1] + points[b, 1] + points[c, 1])
+        + nz * (points[a, 2] + points[b, 2] + points[c, 2])
+    ) / 3.0
+    return True
 
 
-def affine_rank(points: ArrayLike) -> tuple[int, FloatArray]:
+@nb.njit
+def _height(points: np.ndarray, q: int, planes: np.ndarray, f: int) -> float:
+    """Signed height of point q above the plane of facet f."""
+    return (
+        planes[f, 0] * points[q, 0]
+        + planes[f, 1] * points[q, 1]
+        + planes[f, 2] * points[q, 2]
+        - planes[f, 3]
+    )
+
+
+@nb.njit
+def _initial_simplex(points: np.ndarray, tolerance: float) -> tuple[int, int, int, int, int]:
     """
-    Find the dimension of the affine span of `points` and its principal directions.
+    Pick four points spanning a tetrahedron that is far from flat.
 
-    :param points: (N, 3) points, N >= 1, best centred and scaled to about unit size.
-    :return: the rank (0 to 3) and a right-handed (3, 3) rotation whose columns are the
-        principal directions, largest spread first (the PCA axes).
+    :return: the rank found (3 when the tetrahedron exists) and its four point indices.
     """
-    centered = np.asarray(points, dtype=np.float64)
-    centered = centered - centered.mean(axis=0)
-    # Fast path: the covariance's eigenvalues are the squared singular values. Squaring halves
-    # the usable precision, so near-degenerate clouds take the exact path below.
-    variances, vectors = np.linalg.eigh(np.einsum('nd,ne->de', centered, centered))
-    variances = variances[::-1]
-    vectors = vectors[:, ::-1]
-    if variances[2] <= (1e-4) ** 2 * variances[0]:
-        # The triangular factor of a QR decomposition has the singular values and right singular
-        # vectors of the (N, 3) matrix, without squaring its condition number.
-        triangle = np.linalg.qr(centered, mode='r') if len(centered) > 3 else centered
-        _, singular, vt = np.linalg.svd(triangle, full_matrices=True)
-        variances = np.concatenate([singular, np.zeros(3 - len(singular))]) ** 2
-        vectors = vt.T
-    spread = np.sqrt(np.maximum(variances, 0.0))
-    rank = 0 if spread[0] == 0.0 else int(np.sum(spread > RANK_TOLERANCE * spread[0]))
-    rotation = np.array(vectors, dtype=np.float64)
-    if np.linalg.det(rotation) < 0.0:
-        rotation[:, 2] = -rotation[:, 2]
-    return rank, rotation
+    count = points.shape[0]
+    low = np.zeros(3, dtype=np.int64)
+    high = np.zeros(3, dtype=np.int64)
+    for i in range(1, count):
+        for k in range(3):
+            if points[i, k] < points[low[k], k]:
+                low[k] = i
+            if points[i, k] > points[high[k], k]:
+                high[k] = i
+    # The two farthest apart among the six extremes.
+    first = 0
+    second = 0
+    best = -1.0
+    for s in range(6):
+        i = low[s] if s < 3 else high[s - 3]
+        for t in range(s + 1, 6):
+            j = low[t] if t < 3 else high[t - 3]
+            d = 0.0
+            for k in range(3):
+                d += (points[i, k] - points[j, k]) ** 2
+            if d > best:
+                best = d
+                first = i
+                second = j
+    if not math.sqrt(best) > tolerance:
+        return 0, first, first, first, first
+    # The farthest from their line.
+    dx = points[second, 0] - points[first, 0]
+    dy = points[second, 1] - points[first, 1]
+    dz = points[second, 2] - points[first, 2]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    dx /= length
+    dy /= length
+    dz /= length
+    third = first
+    best = -1.0
+    for i in range(count):
+        if i == first or i == second:
+            continue
+        px = points[i, 0] - points[first, 0]
+        py = points[i, 1] - points[first, 1]
+        pz = points[i, 2] - points[first, 2]
+        cx = py * dz - pz * dy
+        cy = pz * dx - px * dz
+        cz = px * dy - py * dx
+        d = cx * cx + cy * cy + cz * cz
+        if d > best:
+            best = d
+            third = i
+    if not math.sqrt(best) > tolerance:
+        return 1, first, second, second, second
+    # The farthest from their plane.
+    plane = np.empty((1, 4))
+    if not _plane(points, first, second, third, plane, 0):
+        return 1, first, second, second, second
+    fourth = first
+    best = -1.0
+    for i in range(count):
+        if i == first or i == second or i == third:
+            continue
+        d = abs(_height(points, i, plane, 0))
+        if d > best:
+            best = d
+            fourth = i
+    if not best > tolerance:
+        return 2, first, second, third, third
+    return 3, first, second, third, fourth
 
 
-def interior_cull(points: FloatArray) -> IndexArray:
+@nb.njit
+def _empty_hull(status: int) -> tuple:
+    return (
+        status,
+        np.zeros(0, dtype=np.int64),
+        np.zeros((0, 3), dtype=np.int64),
+        np.zeros((0, 3)),
+        np.zeros(0),
+        np.zeros((0, 2), dtype=np.int64),
+        np.zeros((0, 2), dtype=np.int64),
+    )
+
+
+@nb.njit
+def _unlink(head: np.ndarray, following: np.ndarray, facet: int, point: int) -> None:
+    """Remove `point` from the outside list of `facet`."""
+    previous = -1
+    q = head[facet]
+    while q >= 0:
+        if q == point:
+            if previous < 0:
+                head[facet] = following[q]
+            else:
+                following[previous] = following[q]
+            return
+        previous = q
+        q = following[q]
+
+
+@nb.njit(cache=True)
+def quickhull_kernel(points: np.ndarray, tolerance: float) -> tuple:
     """
-    Return the indices of the points that may be hull vertices (Akl-Toussaint throw-away).
+    Compute the convex hull of 3D points (see the module notes and :class:`Hull`).
 
-    The points extreme along fixed directions (the 3 axes and 4 diagonals of a cube, and its 6
-    edge axes from 65,536 points on), among an evenly spread subset of 8,192 points, span an
-    inner polytope. A point inside it is a convex combination of input points, so it is neither
-    a hull vertex nor can it change any bounding box. Cost O(N) with a small constant: one test
-    per facet of the inner polytope, in blocks to keep temporaries small. Solid clouds lose most
-    of their points, surface scans about half; when a probe of 512 points says more than 60 %
-    would stay (flat sides), all points are returned untested.
+    :param points: (N, 3) C-contiguous points, best centred and scaled to about unit size.
+    :param tolerance: height above a facet, relative to the largest absolute coordinate, below
+        which a point counts as inside.
+    :return: the fields of :class:`Hull`, in order.
+    """
+    count = points.shape[0]
+    if count == 0:
+        return _empty_hull(0)
+    size = 0.0
+    for i in range(count):
+        for k in range(3):
+            size = max(size, abs(points[i, k]))
+    eps = tolerance * size
+    rank, a, b, c, d = _initial_simplex(points, eps)
+    if rank < 3:
+        return _empty_hull(rank)
+
+    capacity = 64
+    corners = np.empty((capacity, 3), dtype=np.int64)
+    neighbours = np.empty((capacity, 3), dtype=np.int64)
+    planes = np.empty((capacity, 4))
+    alive = np.zeros(capacity, dtype=np.bool_)
+    head = np.full(capacity, -1, dtype=np.int64)
+    farthest = np.full(capacity, -1, dtype=np.int64)
+    top = np.zeros(capacity)
+    tested = np.zeros(capacity, dtype=np.int64)
+    seen = np.zeros(capacity, dtype=np.int64)
+    following = np.full(count, -1, dtype=np.int64)
+    vertex_mark = np.zeros(count, dtype=np.int64)
+    vertex_edge = np.zeros(count, dtype=np.int64)
+
+    # The tetrahedron, oriented once from the side of its base the fourth corner lies on (one
+    # decision, so the four facets always fit together), each facet facing away from the
+    # opposite corner.
+    base = np.empty((1, 4))
+    _plane(points, a, b, c, base, 0)
+    if _height(points, d, base, 0) < 0.0:
+        b, c = c, b
+    tetra = np.array([a, c, b, a, b, d, b, c, d, c, a, d]).reshape(4, 3)
+    for f in range(4):
+        for k in range(3):
+            corners[f, k] = tetra[f, k]
+            neighbours[f, k] = -1
+        if not _plane(points, corners[f, 0], corners[f, 1], corners[f, 2], planes, f):
+            return _empty_hull(2)
+        alive[f] = True
+    # Each facet must have the opposite corner below it; a sliver too thin for its facets'
+    # normals (rounding makes them disagree) counts as flat.
+    opposite = np.array([d, c, a, b])
+    for f in range(4):
+        if not _height(points, opposite[f], planes, f) < 0.0:
+            return _empty_hull(2)
+    for f in range(4):
+        for e in range(3):
+            u = corners[f, e]
+            v = corners[f, (e + 1) % 3]
+            for g in range(4):
+                if g != f:
+                    for h in range(3):
+                        if corners[g, h] == v and corners[g, (h + 1) % 3] == u:
+                            neighbours[f, e] = g
+    facets = 4
+    inner_x = 0.25 * (points[a, 0] + points[b, 0] + points[c, 0] + points[d, 0])
+    inner_y = 0.25 * (points[a, 1] + points[b, 1] + points[c, 1] + points[d, 1])
+    inner_z = 0.25 * (points[a, 2] + points[b, 2] + points[c, 2] + points[d, 2])
+    for q in range(count):
+        if q == a or q == b or q == c or q == d:
+            continue
+        for f in range(4):
+            height = _height(points, q, planes, f)
+            if height > eps:
+                following[q] = head[f]
+                head[f] = q
+                if height > top[f] or farthest[f] < 0:
+                    top[f] = height
+                    farthest[f] = q
+                break
+
+    visible = np.empty(16, dtype=np.int64)
+    horizon_from = np.empty(16, dtype=np.int64)
+    horizon_to = np.empty(16, dtype=np.int64)
+    horizon_out = np.empty(16, dtype=np.int64)
+    new_planes = np.empty((16, 4))
+    stamp = 0
+    current = 0
+    while current < facets:
+        f = current
+        if not alive[f] or head[f] < 0:
+            current += 1
+            continue
+        eye = farthest[f]
+        stamp += 1
+        # The facets the eye sees: a breadth-first search from f through visible neighbours.
+        visible[0] = f
+        seen_count = 1
+        tested[f] = stamp
+        seen[f] = stamp
+        i = 0
+        while i < seen_count:
+            g = visible[i]
+            i += 1
+            for e in range(3):
+                h = neighbours[g, e]
+                if tested[h] != stamp:
+                    tested[h] = stamp
+                    if _height(points, eye, planes, h) > -eps:
+                        seen[h] = stamp
+                        if seen_count == visible.shape[0]:
+                            visible = _grow(visible, 2 * seen_count)
+                        visible[seen_count] = h
+                        seen_count += 1
+        # The horizon: edges of seen facets whose neighbour is not seen.
+        edges = 0
+        for i in range(seen_count):
+            g = visible[i]
+            for e in range(3):
+                h = neighbours[g, e]
+                if seen[h] != stamp:
+                    if edges == horizon_from.shape[0]:
+                        horizon_from = _grow(horizon_from, 2 * edges)
+                        horizon_to = _grow(horizon_to, 2 * edges)
+                        horizon_out = _grow(horizon_out, 2 * edges)
+                        new_planes = _grow_rows(new_planes, 2 * edges)
+                    horizon_from[edges] = corners[g, e]
+                    horizon_to[edges] = corners[g, (e + 1) % 3]
+                    horizon_out[edges] = h
+                    edges += 1
+        # It must be one simple cycle, and every new facet must have a normal.
+        usable = edges >= 3
+        if usable:
+            for e in range(edges):
+                v = horizon_from[e]
+                if vertex_mark[v] == stamp:
+                    usable = False
+                    break
+                vertex_mark[v] = stamp
+                vertex_edge[v] = e
+        if usable:
+            e = 0
+            for step in range(edges):
+                v = horizon_to[e]
+                if vertex_mark[v] != stamp:
+                    usable = False
+                    break
+                e = vertex_edge[v]
+                if e == 0 and step < edges - 1:
+                    usable = False
+                    break
+            if e != 0:
+                usable = False
+        if usable:
+            for e in range(edges):
+                if not _plane(points, horizon_from[e], horizon_to[e], eye, new_planes, e):
+                    usable = False
+                    break
+                # The tetrahedron's centroid is inside: a new facet must face away from it.
+                height = (
+                    new_planes[e, 0] * inner_x
+                    + new_planes[e, 1] * inner_y
+                    + new_planes[e, 2] * inner_z
+                    - new_planes[e, 3]
+                )
+                if not height < 0.0:
+                    usable = False
+                    break
+        if not usable:
+            # Rounding made the seen region ragged: drop the eye (within rounding of the hull).
+            _unlink(head, following, f, eye)
+            farthest[f] = -1
+            top[f] = 0.0
+            q = head[f]
+            while q >= 0:
+                height = _height(points, q, planes, f)
+                if farthest[f] < 0 or height > top[f]:
+                    top[f] = height
+                    farthest[f] = q
+                q = following[q]
+            continue
+        if facets + edges > corners.shape[0]:
+            grown = 2 * (facets + edges)
+            corners = _grow_rows(corners, grown)
+            neighbours = _grow_rows(neighbours, grown)
+            planes = _grow_rows(planes, grown)
+            alive = _grow(alive, grown)
+            head = _grow(head, grown)
+            farthest = _grow(farthest, grown)
+            top = _grow(top, grown)
+            tested = _grow(tested, grown)
+            seen = _grow(seen, grown)
+            for f in range(facets, grown):
+                tested[f] = 0
+                seen[f] = 0
+        # A fan of new facets from the horizon to the eye.
+        for e in range(edges):
+            n = facets + e
+            u = horizon_from[e]
+            v = horizon_to[e]
+            corners[n, 0] = u
+            corners[n, 1] = v
+            corners[n, 2] = eye
+            for k in range(4):
+                planes[n, k] = new_planes[e, k]
+            h = horizon_out[e]
+            neighbours[n, 0] = h
+            for k in range(3):
+                if corners[h, k] == v and corners[h, (k + 1) % 3] == u:
+                    neighbours[h, k] = n
+            after = facets + vertex_edge[v]
+            neighbours[n, 1] = after
+            neighbours[after, 2] = n
+            alive[n] = True
+            head[n] = -1
+            farthest[n] = -1
+            top[n] = 0.0
+            tested[n] = 0
+            seen[n] = 0
+        # Hand the seen facets' points to the new facets (or drop them: they are inside).
+        for i in range(seen_count):
+            g = visible[i]
+            alive[g] = False
+            q = head[g]
+            head[g] = -1
+            while q >= 0:
+                following_q = following[q]
+                if q != eye:
+                    for e in range(edges):
+                        n = facets + e
+                        height = _height(points, q, planes, n)
+                        if height > eps:
+                            following[q] = head[n]
+                            head[n] = q
+                            if farthest[n] < 0 or height > top[n]:
+                                top[n] = height
+                                farthest[n] = q
+                            break
+                q = following_q
+        facets += edges
+
+    # Compact: live facets, their vertices, and each edge once with its two facets.
+    facet_id = np.full(facets, -1, dtype=np.int64)
+    live = 0
+    for f in range(facets):
+        if alive[f]:
+            facet_id[f] = live
+            live += 1
+    # The construction keeps a closed surface; should anything have gone wrong all the same,
+    # say so rather than return a broken one.
+    for f in range(facets):
+        if alive[f]:
+            for k in range(3):
+                g = neighbours[f, k]
+                repeated = corners[f, k] == corners[f, (k + 1) % 3]
+                if g < 0 or g >= facets or not alive[g] or repeated:
+                    return _empty_hull(BROKEN)
+    vertex_id = np.full(count, -1, dtype=np.int64)
+    vertices = np.empty(count, dtype=np.int64)
+    hull_size = 0
+    out_facets = np.empty((live, 3), dtype=np.int64)
+    normals = np.empty((live, 3))
+    areas = np.empty(live)
+    edge_ends = np.empty((live * 3 // 2, 2), dtype=np.int64)
+    edge_facets = np.empty((live * 3 // 2, 2), dtype=np.int64)
+    edge_count = 0
+    for f in range(facets):
+        if not alive[f]:
+            continue
+        n = facet_id[f]
+        for k in range(3):
+            v = corners[f, k]
+            if vertex_id[v] < 0:
+                vertex_id[v] = hull_size
+                vertices[hull_size] = v
+                hull_size += 1
+            out_facets[n, k] = vertex_id[v]
+            normals[n, k] = planes[f, k]
+        p0 = corners[f, 0]
+        p1 = corners[f, 1]
+        p2 = corners[f, 2]
+        ux = points[p1, 0] - points[p0, 0]
+        uy = points[p1, 1] - points[p0, 1]
+        uz = points[p1, 2] - points[p0, 2]
+        vx = points[p2, 0] - points[p0, 0]
+        vy = points[p2, 1] - points[p0, 1]
+        vz = points[p2, 2] - points[p0, 2]
+        areas[n] = 0.5 * math.sqrt(
+            (uy * vz - uz * vy) ** 2 + (uz * vx - ux * vz) ** 2 + (ux * vy - uy * vx) ** 2
+        )
+    for f in range(facets):
+        if not alive[f]:
+            continue
+        for k in range(3):
+            g = facet_id[neighbours[f, k]]
+            if facet_id[f] < g and edge_count < edge_ends.shape[0]:
+                edge_ends[edge_count, 0] = vertex_id[corners[f, k]]
+                edge_ends[edge_count, 1] = vertex_id[corners[f, (k + 1) % 3]]
+                edge_facets[edge_count, 0] = facet_id[f]
+                edge_facets[edge_count, 1] = g
+                edge_count += 1
+    return (
+        FULL_RANK,
+        vertices[:hull_size].copy(),
+        out_facets,
+        normals,
+        areas,
+        edge_ends[:edge_count].copy(),
+        edge_facets[:edge_count].copy(),
+    )
+
+
+@nb.njit
+def _column(value: float, low: float, span: float, cells: int) -> int:
+    """
+    Return the grid cell (0 to cells - 1) of a coordinate in [low, low + span].
+
+    The offset is divided by the span rather than multiplied by ``cells / span``: that quotient
+    overflows for subnormal spans (a cloud 1e-313 thick), and inf times 0 is NaN, which has no
+    integer. The top of the range falls in the last cell; a zero span puts everything in cell 0.
+    """
+    if not span > 0.0:
+        return 0
+    return min(int((value - low) / span * cells), cells - 1)
+
+
+@nb.njit(cache=True)
+def column_extremes_kernel(
+    points: np.ndarray, low: np.ndarray, high: np.ndarray, cells: int
+) -> np.ndarray:
+    """
+    Return the indices of the highest and lowest point of every grid column, along each axis.
+
+    For each coordinate axis the box [low, high] is cut into ``cells x cells`` columns across it;
+    one point at each end of every non-empty column is kept (the first met on ties).
+
+    :param points: (N, 3) points.
+    :param low: (3,) lower corner of their bounding box.
+    :param high: (3,) upper corner.
+    :param cells: columns per side, >= 1.
+    :return: the kept indices, each once, grouped by axis and column.
+    """
+    count = points.shape[0]
+    columns = cells * cells
+    spans = np.empty(3)
+    for k in range(3):
+        spans[k] = high[k] - low[k]
+    # Columns across x, then y, then z, one after the other in flat arrays.
+    top = np.full(3 * columns, -np.inf)
+    bottom = np.full(3 * columns, np.inf)
+    top_index = np.full(3 * columns, -1, dtype=np.int64)
+    bottom_index = np.full(3 * columns, -1, dtype=np.int64)
+    for i in range(count):
+        x = points[i, 0]
+        y = points[i, 1]
+        z = points[i, 2]
+        bx = _column(x, low[0], spans[0], cells)
+        by = _column(y, low[1], spans[1], cells)
+        bz = _column(z, low[2], spans[2], cells)
+        column = by * cells + bz
+        if x > top[column]:
+            top[column] = x
+            top_index[column] = i
+        if x < bottom[column]:
+            bottom[column] = x
+            bottom_index[column] = i
+        column = columns + bz * cells + bx
+        if y > top[column]:
+            top[column] = y
+            top_index[column] = i
+        if y < bottom[column]:
+            bottom[column] = y
+            bottom_index[column] = i
+        column = 2 * columns + bx * cells + by
+        if z > top[column]:
+            top[column] = z
+            top_index[column] = i
+        if z < bottom[column]:
+            bottom[column] = z
+            bottom_index[column] = i
+    kept = np.zeros(count, dtype=np.bool_)
+    out = np.empty(6 * columns, dtype=np.int64)
+    size = 0
+    for column in range(3 * columns):
+        i = top_index[column]
+        if i >= 0 and not kept[i]:
+            kept[i] = True
+            out[size] = i
+            size += 1
+        i = bottom_index[column]
+        if i >= 0 and not kept[i]:
+            kept[i] = True
+            out[size] = i
+            size += 1
+    return out[:size].copy()
+
+
+def convex_hull(points: ArrayLike, tolerance: float = HULL_TOLERANCE) -> Hull:
+    """
+    Return the convex hull of 3D points (:class:`Hull`; ``status`` < 3 for flat input).
 
     :param points: (N, 3) points, best centred and scaled to about unit size.
-    :return: sorted indices of the points on or outside the inner polytope.
+    :param tolerance: relative height above a facet below which a point counts as inside.
+    :return: the hull; its vertices index `points`.
     """
-    # Coordinates as three contiguous rows: projections and reductions then run along rows.
-    rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
-    count = rows.shape[1]
-    directions = _CULL_DIRECTIONS[: 13 if count >= _CULL_FINE_POINTS else 7]
-    # The polytope spans the extreme points of an evenly spread subset: still input points, so
-    # the cull stays exact, and deciding whether it pays costs next to nothing.
-    step = max(1, count // _CULL_SUBSET)
-    subset = np.ascontiguousarray(rows[:, ::step])
-    heights = project(directions, subset)
-    extremes = step * np.unique(np.concatenate([heights.argmin(axis=1), heights.argmax(axis=1)]))
-    try:
-        inner = ConvexHull(rows[:, extremes].T)
-    except QhullError:
-        return np.arange(count)
-    # Signed heights above the inner facets; points within rounding of the boundary are kept.
-    planes = inner.equations
-    planes[:, 3] += 1e-12
-    # Flat-sided scans keep most points (they lie on the hull's faces): when an evenly spread
-    # probe says so, testing them all would cost more than Qhull saves.
-    probe = subset[:, :: max(1, subset.shape[1] // _CULL_PROBE)]
-    probe_heights = project(planes[:, :3], probe) + planes[:, 3:]
-    if np.mean(probe_heights.max(axis=0) > 0.0) > _CULL_WORTHWHILE:
-        return np.arange(count)
-    keep = np.zeros(count, dtype=bool)
-    for begin in range(0, count, _CULL_BLOCK):
-        end = begin + _CULL_BLOCK
-        heights = project(planes[:, :3], rows[:, begin:end])
-        heights += planes[:, 3:]
-        keep[begin:end] = heights.max(axis=0) > 0.0
-    keep[extremes] = True
-    return np.flatnonzero(keep)
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    return Hull(*quickhull_kernel(pts, float(tolerance)))
 
 
 def column_extremes(points: ArrayLike, cells: int) -> IndexArray:
     """
-    Return the indices of the highest and lowest point of every grid column, along each axis.
-
-    Barequet and Har-Peled's grid coreset: for each coordinate axis, the plane of the other two
-    is cut into ``cells x cells`` columns over the points' bounding box, and only the extreme
-    points of each column along that axis are kept. Every point is then within one column width
-    (1 / `cells` of the box side) of the hull of the kept points, across the column, so a box
-    direction found on them is nearly as good as one found on all points; the caller grows its
-    box to enclose every point. Cost O(N), a few passes. Best given in the PCA frame, where flat
-    scans fill few columns.
+    Return the indices of the grid coreset of `points` (:func:`column_extremes_kernel`).
 
     :param points: (N, 3) points, N >= 1.
     :param cells: columns per side, >= 1.
-    :return: sorted indices of the kept points (ties at a column's extreme are all kept).
+    :return: the kept indices, sorted.
     """
-    rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
-    low = rows.min(axis=1)
-    span = rows.max(axis=1) - low
-    # Column index of every point along each axis (the top edge falls in the last column).
-    scale = np.divide(cells, span, out=np.zeros(3), where=span > 0.0)
-    bins = np.minimum(((rows - low[:, None]) * scale[:, None]).astype(np.intp), cells - 1)
-    keep = np.zeros(rows.shape[1], dtype=bool)
-    for axis in range(3):
-        first, second = (axis + 1) % 3, (axis + 2) % 3
-        column = bins[first] * cells + bins[second]
-        heights = rows[axis]
-        highest = np.full(cells * cells, -np.inf)
-        np.maximum.at(highest, column, heights)
-        lowest = np.full(cells * cells, np.inf)
-        np.minimum.at(lowest, column, heights)
-        keep |= heights >= highest[column]
-        keep |= heights <= lowest[column]
-    return np.flatnonzero(keep)
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    kept = column_extremes_kernel(pts, pts.min(axis=0), pts.max(axis=0), int(cells))
+    return np.sort(kept)
 
 
-def convex_hull(points: ArrayLike) -> Hull:
-    """
-    Compute the convex hull of full-dimensional 3D points, with edge-facet adjacency.
-
-    Large clouds are culled first (:func:`interior_cull`). Qhull runs with its defaults first
-    and with joggled input ('QJ') when it reports a precision problem; the vertices are always
-    input points, the facets those Qhull found.
-
-    :param points: (N, 3) points spanning three dimensions, best centred and scaled to about
-        unit size (Qhull's tolerances are relative, but rounding is not).
-    :return: the hull.
-    :raises DegenerateHullError: when Qhull cannot build a 3D hull (flat or too few points).
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    if len(pts) < 4:
-        raise DegenerateHullError(f'a 3D hull needs at least 4 points, got {len(pts)}')
-    if len(pts) >= CULL_MIN_POINTS:
-        kept = interior_cull(pts)
-        pts = pts[kept] if len(kept) < len(pts) else pts
-    qhull = None
-    for options in ('Qt', 'QJ'):
-        try:
-            qhull = ConvexHull(pts, qhull_options=options)
-            break
-        except QhullError:
-            continue
-    if qhull is None:
-        raise DegenerateHullError('Qhull could not build a 3D hull: the points are (nearly) flat')
-    vertex_ids = np.asarray(qhull.vertices, dtype=np.intp)
-    renumber = np.full(len(pts), -1, dtype=np.intp)
-    renumber[vertex_ids] = np.arange(len(vertex_ids))
-    triangles = renumber[qhull.simplices]
-    vertices = pts[vertex_ids]
-    corners = vertices[triangles]
-    areas = 0.5 * np.linalg.norm(
-        np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
-    )
-    # Facet f's neighbour i lies opposite its vertex i: they share the other two vertices.
-    facet = np.repeat(np.arange(len(triangles)), 3)
-    neighbour = np.asarray(qhull.neighbors, dtype=np.intp).ravel()
-    start = triangles[:, [1, 2, 0]].ravel()
-    end = triangles[:, [2, 0, 1]].ravel()
-    once = facet < neighbour
-    return Hull(
-        vertices=vertices,
-        facets=triangles,
-        normals=np.ascontiguousarray(qhull.equations[:, :3]),
-        areas=areas,
-        edges=np.column_stack([start[once], end[once]]),
-        edge_facets=np.column_stack([facet[once], neighbour[once]]),
-    )
+def warm_up() -> None:
+    """Run every kernel of this module once on tiny inputs (see :mod:`mvbb_ros.kernels`)."""
+    corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T
+    convex_hull(np.vstack([corners, 0.5 * corners]))
+    column_extremes(corners, 2)

@@ -1,35 +1,40 @@
 """
-Minimum-area enclosing rectangle of planar points, by vectorised rotating calipers.
+Minimum-area enclosing rectangle of planar points, in compiled code.
 
-Freeman and Shapira (1975): a minimum-area enclosing rectangle has one side collinear with an
-edge of the convex hull. Rotating calipers (Toussaint 1983) visit the hull edges in order and
-keep the four supporting vertices. Here the supporting vertices of every edge are found at once:
-the edge angles of a convex polygon, taken counter-clockwise, increase over one turn (summed
-from the turns between consecutive edges, so rounding cannot make them decrease), and the
-vertex extreme in a direction is a binary search (``numpy.searchsorted``) on them. Cost: O(n log
-m) for the hull of ``m`` of ``n`` points, then O(m log m).
+Freeman and Shapira (1975): a minimum-area enclosing rectangle has one side collinear with an edge
+of the convex hull. Rotating calipers (Toussaint 1983) visit the hull edges counter-clockwise and
+move three supporting vertices (farthest along the edge, farthest from it, farthest back) forward
+as the edge turns, so all edges cost O(m) for a hull of m vertices.
 
-:func:`min_area_rectangle` serves one planar cloud; :func:`min_area_rectangles` serves many
-convex polygons in one call, which is how :mod:`mvbb_ros.geometry.fit` turns a box to its best
-rotation about many axes at once (the rectangle of each projected hull silhouette).
+* :func:`hull_2d_kernel`: Andrew's monotone chain (sort by x then y, two sweeps that keep left
+  turns only), after an Akl-Toussaint throw-away of the points strictly inside the octagon of the
+  extremes along eight directions when there are many. Duplicates and collinear points never
+  break it: they are dropped.
+* :func:`calipers_kernel`: the rotating calipers on a counter-clockwise convex polygon. Areas are
+  compared without square roots (the edge's squared length divides the product of the two spans).
+
+:func:`min_area_rectangle` is the typed wrapper for one planar cloud. The 3D box search
+(:mod:`mvbb_ros.geometry.search`) calls the kernels directly, on the projected silhouette of a
+hull, with work arrays it reuses.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from typing import NamedTuple
 
-from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.arrays import FloatArray
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import ConvexHull, QhullError
 
-_TWO_PI = 2.0 * np.pi
-#: Relative singular value below which planar points are treated as collinear (or coincident).
-_RANK_TOLERANCE = 1e-12
+#: Points above which the octagon throw-away runs before the sort.
+CULL_MIN_POINTS = 64
+#: Point counts up to which an insertion sort beats the library sort.
+_INSERTION_SORT_MAX = 40
 
 
-@dataclass(frozen=True, eq=False)
-class Rectangle:
+class Rectangle(NamedTuple):
     """
     An oriented rectangle in the plane.
 
@@ -53,174 +58,276 @@ class Rectangle:
         return self.center + (signs * self.extents / 2.0) @ self.axes.T
 
 
-def _as_points_2d(points: ArrayLike) -> FloatArray:
+@nb.njit
+def _before(x: np.ndarray, y: np.ndarray, i: int, j: int) -> bool:
+    """Tell whether point i comes before point j in (x, y) order."""
+    return x[i] < x[j] or (x[i] == x[j] and y[i] < y[j])
+
+
+@nb.njit(cache=True)
+def sort_xy_kernel(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) -> None:
+    """
+    Sort ``order[:count]`` (indices into x, y) by x, then y.
+
+    Insertion sort for a few points, heapsort beyond (O(n log n) whatever the input, and far
+    quicker to compile than numba's own sorts).
+    """
+    if count <= _INSERTION_SORT_MAX:
+        for i in range(1, count):
+            item = order[i]
+            j = i - 1
+            while j >= 0 and _before(x, y, item, order[j]):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = item
+        return
+    # Heapsort: build a max-heap, then move the largest to the end, count times.
+    for start in range(count // 2 - 1, -1, -1):
+        _sift_down(x, y, order, start, count)
+    for end in range(count - 1, 0, -1):
+        order[0], order[end] = order[end], order[0]
+        _sift_down(x, y, order, 0, end)
+
+
+@nb.njit
+def _sift_down(x: np.ndarray, y: np.ndarray, order: np.ndarray, root: int, end: int) -> None:
+    """Restore the max-heap order of ``order[root:end]`` below `root`."""
+    while True:
+        child = 2 * root + 1
+        if child >= end:
+            return
+        if child + 1 < end and _before(x, y, order[child], order[child + 1]):
+            child += 1
+        if not _before(x, y, order[root], order[child]):
+            return
+        order[root], order[child] = order[child], order[root]
+        root = child
+
+
+@nb.njit
+def _turn(x: np.ndarray, y: np.ndarray, o: int, a: int, b: int) -> float:
+    """Cross product (a - o) x (b - o): positive for a left turn o -> a -> b."""
+    return (x[a] - x[o]) * (y[b] - y[o]) - (y[a] - y[o]) * (x[b] - x[o])
+
+
+@nb.njit
+def _octagon_cull(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) -> int:
+    """
+    Drop from ``order[:count]`` the points strictly inside the octagon of eight extremes.
+
+    :return: how many indices are left at the front of `order`.
+    """
+    extreme = np.zeros(8, dtype=np.int64)
+    best = np.full(8, -np.inf)
+    for s in range(count):
+        i = order[s]
+        xi = x[i]
+        yi = y[i]
+        # Directions counter-clockwise: (1,0), (1,1), (0,1), (-1,1), (-1,0), (-1,-1), ...
+        values = (xi, xi + yi, yi, yi - xi, -xi, -xi - yi, -yi, xi - yi)
+        for k in range(8):
+            if values[k] > best[k]:
+                best[k] = values[k]
+                extreme[k] = i
+    kept = 0
+    for s in range(count):
+        i = order[s]
+        inside = True
+        for k in range(8):
+            a = extreme[k]
+            b = extreme[(k + 1) % 8]
+            if a == b:
+                continue
+            if _turn(x, y, a, b, i) <= 0.0:
+                inside = False
+                break
+        if not inside:
+            order[kept] = i
+            kept += 1
+    return kept
+
+
+@nb.njit(cache=True)
+def hull_2d_kernel(
+    x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int, out: np.ndarray
+) -> int:
+    """
+    Find the convex hull of planar points, counter-clockwise, without collinear vertices.
+
+    :param x: x coordinates.
+    :param y: y coordinates.
+    :param order: the indices of the points to use in ``order[:count]`` (reordered in place).
+    :param count: how many.
+    :param out: room for ``count + 1`` indices; receives the hull's vertex indices.
+    :return: the number m of hull vertices in ``out[:m]`` (1 for coincident points, 2 for
+        collinear ones).
+    """
+    if count > CULL_MIN_POINTS:
+        count = _octagon_cull(x, y, order, count)
+    sort_xy_kernel(x, y, order, count)
+    size = 0
+    for s in range(count):
+        i = order[s]
+        while size >= 2 and _turn(x, y, out[size - 2], out[size - 1], i) <= 0.0:
+            size -= 1
+        out[size] = i
+        size += 1
+    lower = size + 1
+    for s in range(count - 2, -1, -1):
+        i = order[s]
+        while size >= lower and _turn(x, y, out[size - 2], out[size - 1], i) <= 0.0:
+            size -= 1
+        out[size] = i
+        size += 1
+    # The last point repeats the first; a single distinct point stays once.
+    size = max(size - 1, 1)
+    if size == 2 and x[out[0]] == x[out[1]] and y[out[0]] == y[out[1]]:
+        size = 1
+    return size
+
+
+@nb.njit(cache=True)
+def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int) -> tuple:
+    """
+    Find the minimum-area enclosing rectangle of a convex polygon by rotating calipers.
+
+    :param x: x coordinates.
+    :param y: y coordinates.
+    :param polygon: ``polygon[:size]``: the polygon's vertex indices, counter-clockwise.
+    :param size: number of vertices.
+    :return: the area and the unit direction (dx, dy) of the rectangle side flush with a polygon
+        edge. One vertex gives area 0 and (1, 0); two give area 0 along their segment.
+    """
+    if size < 2:
+        return 0.0, 1.0, 0.0
+    if size == 2:
+        dx = x[polygon[1]] - x[polygon[0]]
+        dy = y[polygon[1]] - y[polygon[0]]
+        length = math.hypot(dx, dy)
+        if not length > 0.0:
+            return 0.0, 1.0, 0.0
+        return 0.0, dx / length, dy / length
+    best = np.inf
+    best_x = 1.0
+    best_y = 0.0
+    # Supporting vertices as positions in the polygon, moved forward (with wrap-around) only.
+    right = 1
+    top = 1
+    left = 1
+    last = size - 1
+    for i in range(size):
+        p = polygon[i]
+        q = polygon[i + 1] if i < last else polygon[0]
+        ex = x[q] - x[p]
+        ey = y[q] - y[p]
+        squared = ex * ex + ey * ey
+        if not squared > 0.0:
+            continue
+        # Farthest along the edge, then farthest from it, then farthest back.
+        for _ in range(size):
+            a = polygon[right]
+            b = polygon[right + 1] if right < last else polygon[0]
+            if ex * (x[b] - x[a]) + ey * (y[b] - y[a]) > 0.0:
+                right = right + 1 if right < last else 0
+            else:
+                break
+        if i == 0:
+            top = right
+        for _ in range(size):
+            a = polygon[top]
+            b = polygon[top + 1] if top < last else polygon[0]
+            if ex * (y[b] - y[a]) - ey * (x[b] - x[a]) > 0.0:
+                top = top + 1 if top < last else 0
+            else:
+                break
+        if i == 0:
+            left = top
+        for _ in range(size):
+            a = polygon[left]
+            b = polygon[left + 1] if left < last else polygon[0]
+            if ex * (x[b] - x[a]) + ey * (y[b] - y[a]) < 0.0:
+                left = left + 1 if left < last else 0
+            else:
+                break
+        r = polygon[right]
+        t = polygon[top]
+        lo = polygon[left]
+        along = ex * (x[r] - x[lo]) + ey * (y[r] - y[lo])
+        across = ex * (y[t] - y[p]) - ey * (x[t] - x[p])
+        area = along * across
+        # Compare along * across / squared without dividing: a * squared_best < best * squared.
+        if area < best * squared:
+            best = area / squared
+            best_x = ex
+            best_y = ey
+    if best == np.inf:
+        return 0.0, 1.0, 0.0
+    length = math.hypot(best_x, best_y)
+    return max(best, 0.0), best_x / length, best_y / length
+
+
+@nb.njit(cache=True)
+def min_area_rectangle_kernel(x: np.ndarray, y: np.ndarray) -> tuple:
+    """
+    Return the minimum-area rectangle of planar points as (cx, cy, dx, dy, width, height).
+
+    (dx, dy) is the unit direction of the first side, (-dy, dx) that of the second.
+    """
+    count = x.shape[0]
+    order = np.arange(count)
+    polygon = np.empty(count + 1, dtype=np.int64)
+    size = hull_2d_kernel(x, y, order, count, polygon)
+    _, dx, dy = calipers_kernel(x, y, polygon, size)
+    low_u = np.inf
+    high_u = -np.inf
+    low_v = np.inf
+    high_v = -np.inf
+    for i in range(count):
+        u = dx * x[i] + dy * y[i]
+        v = dx * y[i] - dy * x[i]
+        low_u = min(low_u, u)
+        high_u = max(high_u, u)
+        low_v = min(low_v, v)
+        high_v = max(high_v, v)
+    mid_u = 0.5 * (low_u + high_u)
+    mid_v = 0.5 * (low_v + high_v)
+    return dx * mid_u - dy * mid_v, dy * mid_u + dx * mid_v, dx, dy, high_u - low_u, high_v - low_v
+
+
+def min_area_rectangle(points: ArrayLike) -> Rectangle:
+    """
+    Return the minimum-area rectangle enclosing planar points (exact, up to rounding).
+
+    Coincident points give a zero-size rectangle, collinear points a zero-width one along their
+    line. The rectangle encloses every point.
+
+    :param points: (N, 2) finite points, N >= 1.
+    :return: the rectangle, in the units of the points.
+    :raises ValueError: on empty, non-finite or wrongly shaped input.
+    """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f'expected planar points of shape (N, 2), got shape {pts.shape}')
     if len(pts) == 0:
         raise ValueError('expected at least one planar point, got an empty array')
-    if not np.all(np.isfinite(pts)):
+    if not np.isfinite(pts).all():
         raise ValueError('planar points must be finite, got NaN or inf')
-    return pts
-
-
-def convex_hull_2d(points: ArrayLike) -> IndexArray:
-    """
-    Return the indices of the convex hull vertices of planar points, counter-clockwise.
-
-    Degenerate input does not raise: coincident points give one index, collinear points the two
-    extreme ones.
-
-    :param points: (N, 2) points, N >= 1.
-    :return: (m,) indices into `points`; m >= 3 for a proper polygon.
-    """
-    pts = _as_points_2d(points)
-    centered = pts - pts.mean(axis=0)
-    scale = float(np.max(np.abs(centered)))
-    if scale == 0.0:
-        return np.zeros(1, dtype=np.intp)
-    centered /= scale
-    _, singular, vt = np.linalg.svd(centered, full_matrices=False)
-    if len(pts) >= 3 and singular[1] > _RANK_TOLERANCE * singular[0]:
-        for options in ('', 'QJ'):
-            try:
-                return np.asarray(ConvexHull(centered, qhull_options=options).vertices, np.intp)
-            except QhullError:
-                continue
-    # Collinear (or Qhull gave up on a sliver): the two ends along the principal direction.
-    along = centered @ vt[0]
-    ends = np.array([np.argmin(along), np.argmax(along)], dtype=np.intp)
-    return ends[:1] if ends[0] == ends[1] else ends
-
-
-def min_area_rectangles(
-    points: ArrayLike, groups: ArrayLike, count: int
-) -> tuple[FloatArray, FloatArray]:
-    """
-    Find the minimum-area enclosing rectangles of many convex polygons at once.
-
-    Each group of points must be in convex position (the vertices of a convex polygon, possibly
-    with repeats or extra points on its edges), in any order: the silhouette of a 3D hull seen
-    along an axis is. Each group is ordered counter-clockwise by angle about its centroid; the
-    edge angles then increase over one turn, so for every edge the vertices extreme along the
-    edge and across it are binary searches (one ``searchsorted`` over all groups at once, the
-    groups kept apart by offsets of two turns). O(M log M) for M points in all. Points are
-    handled as complex numbers x + iy, which keeps the number of array operations small.
-
-    :param points: (M, 2) points, or (M,) complex numbers x + iy.
-    :param groups: (M,) group of each point, in ``range(count)``.
-    :param count: number of groups.
-    :return: areas (count,) and unit directions of the first side (count, 2). A group with fewer
-        than two distinct points has area 0 and direction (1, 0); one without points area inf.
-    """
-    z = np.asarray(points)
-    if not np.iscomplexobj(z):
-        z = z.reshape(-1, 2).astype(np.float64) @ np.array([1.0, 1.0j])
-    group = np.asarray(groups, dtype=np.intp).ravel()
-    areas = np.full(count, np.inf)
-    sides = np.ones(count, dtype=np.complex128)
-    if not len(z):
-        return areas, np.column_stack([sides.real, sides.imag])
-    sizes = np.bincount(group, minlength=count)
-    areas[sizes > 0] = 0.0
-    weight = np.maximum(sizes, 1)
-    centroid = np.bincount(group, z.real, count) / weight + 1j * (
-        np.bincount(group, z.imag, count) / weight
+    # Relative to the centre of the bounding box, scaled to unit size: far and tiny clouds keep
+    # their precision and nothing underflows.
+    origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    scale = float(np.max(np.abs(pts - origin)))
+    scale = scale if scale > 0.0 else 1.0
+    unit = (pts - origin) / scale
+    x = np.ascontiguousarray(unit[:, 0])
+    y = np.ascontiguousarray(unit[:, 1])
+    cx, cy, dx, dy, width, height = min_area_rectangle_kernel(x, y)
+    return Rectangle(
+        center=origin + scale * np.array([cx, cy]),
+        axes=np.array([[dx, -dy], [dy, dx]]),
+        extents=scale * np.array([width, height]),
     )
-    # Sort by group, then by angle about the group's centroid (in [-pi, pi]: 8 apart is enough).
-    order = np.argsort(8.0 * group + np.angle(z - centroid[group]), kind='stable')
-    z, group = z[order], group[order]
-    # Drop a point equal to its predecessor in the same group, or (cyclically) to its first.
-    tolerance = 1e-13 * max(float(np.max(np.abs(z))), 1e-300)
-    keep = np.ones(len(z), dtype=bool)
-    keep[1:] = (group[1:] != group[:-1]) | (np.abs(z[1:] - z[:-1]) > tolerance)
-    sizes = np.bincount(group[keep], minlength=count)
-    starts = np.cumsum(sizes) - sizes
-    ends = starts + sizes - 1
-    z, group = z[keep], group[keep]
-    closing = np.zeros(count, dtype=bool)
-    several = sizes > 1
-    closing[several] = np.abs(z[ends[several]] - z[starts[several]]) <= tolerance
-    if closing.any():
-        keep = np.ones(len(z), dtype=bool)
-        keep[ends[closing]] = False
-        z, group = z[keep], group[keep]
-        sizes = np.bincount(group, minlength=count)
-        starts = np.cumsum(sizes) - sizes
-        ends = starts + sizes - 1
-    following = np.arange(1, len(z) + 1)
-    following[ends[sizes > 0]] = starts[sizes > 0]
-    edges = z[following] - z
-    lengths = np.abs(edges)
-    usable = lengths > 0.0
-    unit = edges / np.where(usable, lengths, 1.0)
-    # Edge angles as the running sum of the turns between consecutive edges (each in [0, pi]
-    # for a convex polygon; rounding on collinear points is clipped), so they never decrease.
-    turns = np.clip(np.angle(unit[following] * unit.conj()), 0.0, np.pi)
-    before = np.cumsum(turns) - turns
-    angles = before - before[starts[group]]
-    total = np.bincount(group, turns, count)[group]
-    # Vertex j lies between edges j-1 and j and is extreme for the directions whose angle lies
-    # between the outward normals (edge angle - pi/2) of those edges: the vertex extreme along
-    # angle phi is the first j with edge angle >= phi + pi/2, wrapping to the group's start.
-    # One search serves all groups: each is offset by two turns.
-    offset = (2.0 * _TWO_PI) * group
-    queries = angles[:, None] + (np.pi / 2.0) * np.arange(1, 5)
-    queries -= np.where(queries >= total[:, None], total[:, None], 0.0)
-    support = np.searchsorted(offset + angles, queries + offset[:, None])
-    support = np.where(support > ends[group][:, None], starts[group][:, None], support)
-    # Extents along the edge and across it, from the supporting vertices.
-    turned = unit.conj()
-    along = ((z[support[:, 0]] - z[support[:, 2]]) * turned).real
-    across = ((z[support[:, 1]] - z[support[:, 3]]) * turned).imag
-    edge_areas = np.abs(along * across)
-    edge_areas[~(usable & np.isfinite(edge_areas))] = np.inf
-    # The first edge of each group that attains the group's least area.
-    least = np.full(count, np.inf)
-    least[sizes > 0] = np.minimum.reduceat(edge_areas, starts[sizes > 0])
-    attained = np.flatnonzero(edge_areas == least[group])
-    first = np.ones(len(attained), dtype=bool)
-    first[1:] = group[attained][1:] != group[attained][:-1]
-    best = attained[first]
-    best = best[usable[best]]
-    areas[group[best]] = edge_areas[best]
-    sides[group[best]] = unit[best]
-    return areas, np.column_stack([sides.real, sides.imag])
 
 
-def _enclosing(points: FloatArray, direction: ArrayLike) -> Rectangle:
-    """Smallest rectangle with its first side along `direction` that encloses `points`."""
-    u = np.asarray(direction, dtype=np.float64)
-    # Scale first: the squared length of a tiny vector underflows.
-    largest = float(np.max(np.abs(u)))
-    u = u / largest if largest > 0.0 else np.array([1.0, 0.0])
-    u = u / np.hypot(u[0], u[1])
-    axes = np.array([[u[0], -u[1]], [u[1], u[0]]])
-    origin = points[0]
-    local = (points - origin) @ axes
-    low = local.min(axis=0)
-    high = local.max(axis=0)
-    return Rectangle(center=origin + axes @ ((low + high) / 2.0), axes=axes, extents=high - low)
-
-
-def min_area_rectangle(points: ArrayLike) -> Rectangle:
-    """
-    Minimum-area rectangle enclosing planar points (exact, up to rounding).
-
-    Coincident points give a zero-size rectangle, collinear points a zero-width one along
-    their line. The returned rectangle encloses every input point.
-
-    :param points: (N, 2) points, N >= 1, finite.
-    :return: the rectangle, in the units of the points.
-    :raises ValueError: on empty, non-finite or wrongly shaped input.
-    """
-    pts = _as_points_2d(points)
-    hull = convex_hull_2d(pts)
-    if len(hull) == 1:
-        return _enclosing(pts, (1.0, 0.0))
-    if len(hull) == 2:
-        return _enclosing(pts, pts[hull[1]] - pts[hull[0]])
-    polygon = pts[hull] - pts[hull[0]]
-    polygon /= np.max(np.abs(polygon))  # the problem is scale-free; keep clear of underflow
-    _, directions = min_area_rectangles(polygon, np.zeros(len(polygon), dtype=np.intp), 1)
-    return _enclosing(pts, directions[0])
+def warm_up() -> None:
+    """Run every kernel of this module once on tiny inputs (see :mod:`mvbb_ros.kernels`)."""
+    min_area_rectangle([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [1.0, 2.0], [0.5, 1.0]])
