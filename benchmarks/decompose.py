@@ -4,7 +4,7 @@ Benchmark the fit-and-split decomposition and compare it with the paper's Table 
 Run from the repository root (the shared data folder must be beside it, or set
 MVBB_SHARED_DATA)::
 
-    .venv/bin/python benchmarks/decompose.py                  # models: Table I, times
+    .venv/bin/python benchmarks/decompose.py                  # models: Table I, times, targets
     .venv/bin/python benchmarks/decompose.py --scans          # and the real scans
     .venv/bin/python benchmarks/decompose.py --surface        # and surface samples
     .venv/bin/python benchmarks/decompose.py --sweep grid_cells
@@ -19,6 +19,18 @@ box fits). The scan table gives the counts and volume ratios on every cloud in
 ``scans/``. The header names the MVBB implementation used (first docstring line of
 ``mvbb_ros/geometry/fit.py`` and a digest of it and of the kernel modules it calls into), because
 the box counts depend on it.
+
+Targets (issue 17), checked at the end, exit status 1 when one is missed:
+
+* a whole decomposition at t = 0.94 (``decompose`` on the raw cloud, paper defaults) costs at
+  most 3 x one Open3D minimal box (``get_minimal_oriented_bounding_box``, Open3D 0.19) of the same
+  cloud on every real scan in ``scans/`` (medians of ``--repeats`` runs, the two taking turns,
+  each after a short rest; Open3D's point cloud is built outside the timing);
+* the Bunny (``models/bunny_vertices.npy``) at t = 0.98 in under 35 ms (median);
+* no Table I count further from the paper's than before issue 17 (Bunny 2/3/10, Mug 3/4/38,
+  Homer 4/5/9 at t = 0.90/0.94/0.98).
+
+``--no-targets`` skips them.
 
 Units: the GraspIt! mug is in millimetres, the bunny and the scans in metres, Homer is
 unitless. Nothing here is metric: theta and Theta* are ratios, the grid is relative to each box
@@ -59,6 +71,21 @@ PAPER_TABLE = {
     'homer': (4, 5, 7),
 }
 PAPER_NAMES = {'bunny': 'Bunny', 'graspit_mug': 'Mug (mm)', 'homer': 'Homer'}
+#: Table I counts of the default before issue 17 (numpy fit, commit 4234b03): no count may move
+#: further from the paper's.
+BEFORE_COUNTS = {
+    'bunny': (2, 3, 10),
+    'graspit_mug': (3, 4, 38),
+    'homer': (4, 5, 9),
+}
+#: Issue 17: a decomposition of a raw scan at t = 0.94 costs at most this many Open3D min boxes.
+SCAN_RATIO_BOUND = 3.0
+SCAN_THRESHOLD = 0.94
+#: Issue 17: the Bunny at t = 0.98 in under this many milliseconds (median).
+BUNNY_BOUND_MS = 35.0
+BUNNY_THRESHOLD = 0.98
+#: Seconds of rest before each timed call in the targets.
+PAUSE = 0.002
 #: Number of cuts the ``rescore`` option re-scores with real box fits.
 RESCORE_CUTS = 4
 VARIANTS: dict[str, dict[str, object]] = {
@@ -95,7 +122,8 @@ def timed(
     return result, statistics.median(seconds)
 
 
-def model_table(repeats: int, variants: Sequence[str], sample: str = 'vertices') -> None:
+def model_table(repeats: int, variants: Sequence[str], sample: str = 'vertices') -> list[str]:
+    """Print the model table; return the Table I counts of the default that got worse."""
     title = (
         'Table I (paper) next to ours'
         if sample == 'vertices'
@@ -106,22 +134,35 @@ def model_table(repeats: int, variants: Sequence[str], sample: str = 'vertices')
     header = '| model | points | variant | ' + ' | '.join(f't = {t:.2f}' for t in THRESHOLDS)
     print(header + ' |')
     print('|' + '---|' * (3 + len(THRESHOLDS)))
+    failures = []
     for model, paper in PAPER_TABLE.items():
         points = load('models', f'{model}_{sample}.npy')
         for variant in variants:
             cells = []
-            for threshold, paper_count in zip(THRESHOLDS, paper, strict=True):
+            for index, (threshold, paper_count) in enumerate(zip(THRESHOLDS, paper, strict=True)):
                 options = {'gain_threshold': threshold, **VARIANTS[variant]}
                 result, seconds = timed(
                     lambda points=points, options=options: decompose(points, **options),
                     repeats,
                 )
+                before = BEFORE_COUNTS[model][index]
+                count = len(result.leaves)
+                if (
+                    sample == 'vertices'
+                    and variant == 'default'
+                    and abs(count - paper_count) > abs(before - paper_count)
+                ):
+                    failures.append(
+                        f'{PAPER_NAMES[model]} at t = {threshold:.2f}: {count} boxes, '
+                        f'{before} before issue 17, {paper_count} in the paper'
+                    )
                 cells.append(
                     f'{len(result.leaves)}/{paper_count}, {result.volume_ratio:.2f}, '
                     f'{seconds * 1e3:.0f} ms'
                 )
             name = PAPER_NAMES[model]
             print(f'| {name} | {len(points)} | {variant} | ' + ' | '.join(cells) + ' |')
+    return failures
 
 
 def time_breakdown() -> None:
@@ -203,6 +244,55 @@ def scan_table(variants: Sequence[str]) -> None:
             result = decompose(points, gain_threshold=1.0, max_boxes=budget, **VARIANTS[variant])
             ratios[variant].append(result.volume_ratio)
     print('| ' + ' | '.join(f'{np.mean(ratios[variant]):.3f}' for variant in variants) + ' |')
+
+
+def speed_targets(repeats: int) -> list[str]:
+    """Time whole decompositions against one Open3D minimal box; return the missed targets."""
+    import open3d as o3d
+
+    print(
+        f'\n## Issue 17: a decomposition at t = {SCAN_THRESHOLD} against one Open3D minimal box '
+        f'(median of {repeats}, taking turns)\n'
+    )
+    print('| cloud | points | boxes | decompose ms | o3d min box ms | ratio |')
+    print('|---|---|---|---|---|---|')
+    failures = []
+    worst = (0.0, '')
+    for path in scan_files():
+        points = np.load(path)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+        result = decompose(points, gain_threshold=SCAN_THRESHOLD)
+        cloud.get_minimal_oriented_bounding_box()
+        ours, theirs = [], []
+        for _ in range(repeats):
+            time.sleep(PAUSE)
+            start = time.perf_counter()
+            decompose(points, gain_threshold=SCAN_THRESHOLD)
+            ours.append(time.perf_counter() - start)
+            time.sleep(PAUSE)
+            start = time.perf_counter()
+            cloud.get_minimal_oriented_bounding_box()
+            theirs.append(time.perf_counter() - start)
+        mine, peer = statistics.median(ours), statistics.median(theirs)
+        ratio = mine / peer
+        worst = max(worst, (ratio, path.stem))
+        print(
+            f'| {path.stem} | {len(points)} | {len(result.leaves)} | {mine * 1e3:.2f} | '
+            f'{peer * 1e3:.2f} | {ratio:.2f} |',
+            flush=True,
+        )
+        if ratio > SCAN_RATIO_BOUND:
+            failures.append(f'{path.stem}: decomposition {ratio:.2f} x Open3D minimal box')
+    print(f'\nworst ratio: {worst[0]:.2f} ({worst[1]}), target {SCAN_RATIO_BOUND}')
+    bunny = load('models', 'bunny_vertices.npy')
+    result, seconds = timed(lambda: decompose(bunny, gain_threshold=BUNNY_THRESHOLD), repeats)
+    print(
+        f'Bunny ({len(bunny)} points) at t = {BUNNY_THRESHOLD}: {len(result.leaves)} boxes in '
+        f'{seconds * 1e3:.1f} ms (median of {repeats}), target < {BUNNY_BOUND_MS:.0f} ms'
+    )
+    if not seconds * 1e3 < BUNNY_BOUND_MS:
+        failures.append(f'Bunny at t = {BUNNY_THRESHOLD}: {seconds * 1e3:.1f} ms')
+    return failures
 
 
 def sweep_grid_cells() -> None:
@@ -311,6 +401,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         action='store_true',
         help='also the model table on uniform surface samples of the same meshes (surface5k)',
     )
+    parser.add_argument('--no-targets', action='store_true', help="skip issue 17's timing targets")
     parser.add_argument(
         '--sweep',
         choices=['grid_cells', 'min_points', 'order'],
@@ -328,13 +419,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.sweep
         ]()
         return 0
+    failures = []
     if not args.no_models:
-        model_table(args.repeats, variants)
+        failures += model_table(args.repeats, variants)
         time_breakdown()
     if args.surface:
         model_table(args.repeats, variants, sample='surface5k')
     if args.scans:
         scan_table(variants)
+    if not args.no_targets:
+        failures += speed_targets(args.repeats)
+    if failures:
+        print(f'\nFAILED targets ({len(failures)}):')
+        for failure in failures:
+            print(f'  {failure}')
+        return 1
+    if not args.no_targets:
+        print('\nall targets met')
     return 0
 
 
