@@ -92,37 +92,39 @@ def _single_view_panels(
 def single_view_figures(shared: Path, out: Path) -> None:
     """Draw real scans and virtual views: the paper's boxes beside the node's defaults."""
     scans = {scan.name: scan for scan in real_scans(shared / 'scans')}
-    panels = []
+    scan_panels = []
     for name in FIGURE_SCANS:
         scan = scans[name]
-        panels += _single_view_panels(name, scan.points, scan.up)
-    render_panels(
-        out / 'single_views_scans.png',
-        panels,
-        views=('camera', 'front'),
-        frame='data',
-        max_grasps=1,
-        max_points=5000,
-        dpi=80,
-        title='Real single views: the paper beside the node (objects, hidden side, 1 cm floor)',
-    )
-    panels = []
+        scan_panels += _single_view_panels(name, scan.points, scan.up)
+    view_panels = []
     for name in FIGURE_VIEWS:
         view = next(
             iter(single_views(load_table_object(shared / 'models', MODEL_BY_NAME[name]), 1))
         )
         surface = view.surface_in_camera()[:: max(1, len(view.obj.surface) // 4000)]
-        panels += _single_view_panels(name, view.points, view.up, surface)
-    render_panels(
-        out / 'single_views_virtual.png',
-        panels,
-        views=('camera', 'front'),
-        frame='data',
-        max_grasps=1,
-        max_points=5000,
-        dpi=80,
-        title='Virtual views against the whole mesh (the node with the up direction)',
-    )
+        view_panels += _single_view_panels(name, view.points, view.up, surface)
+    for name, panels, title in (
+        (
+            'single_views_scans',
+            scan_panels,
+            'Real single views: the paper beside the node (objects, hidden side, 1 cm floor)',
+        ),
+        (
+            'single_views_virtual',
+            view_panels,
+            'Virtual views against the whole mesh (the node with the up direction)',
+        ),
+    ):
+        render_panels(
+            out / f'{name}.png',
+            panels,
+            views=('camera', 'front'),
+            frame='data',
+            max_grasps=1,
+            max_points=5000,
+            dpi=80,
+            title=title,
+        )
 
 
 def _arrow(
