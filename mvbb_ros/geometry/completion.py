@@ -34,6 +34,7 @@ from typing import get_args, Literal
 from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.rectangle import hull_2d_kernel
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -47,8 +48,10 @@ COMPLETIONS: tuple[Completion, ...] = get_args(Completion)
 CELLS_PER_SPACING = 1.5
 #: Most raster cells along a side (coarser cells for objects very large for their spacing).
 MAX_RASTER_SIDE = 256
-#: The estimated part keeps one point per cube this many point spacings wide.
+#: The estimated part keeps one point per cube this many point spacings wide ...
 SOLID_CELLS = 1.0
+#: ... or wider, so that there are at most this many cubes along a side.
+MAX_SOLID_SIDE = 96
 #: Most samples of an object's estimated part (a coarser step beyond: the solid's bounds are
 #: what the decomposition uses, and they do not need more).
 MAX_SAMPLES = 40_000
@@ -64,8 +67,6 @@ MIRROR_REFINE = 17
 MIRROR_TURN_DEG = 45.0
 MIRROR_CONE_DEG = 35.0
 MIRROR_STEP_DEG = 9.0
-#: A plane within this share of violations of its normal's best counts as good as the best.
-MIRROR_SLACK = 0.0
 #: The observed points' box axes (the object's likely symmetry directions) are taken when the
 #: view refutes them at most this share of the sample more than the best fan normal.
 AXIS_PRIOR = 0.1
@@ -231,15 +232,23 @@ def _mirror_violations(
     near: FloatArray,
     tolerance: float,
 ) -> FloatArray:
-    """Return the share of `sample` whose mirror image contradicts the view, per plane."""
+    """
+    Return the share of `sample` whose mirror image contradicts the view, per plane.
+
+    Only each normal's first least value is needed: a plane is given up (its share left as the
+    count so far) as soon as it is refuted more than the best plane of its normal before it.
+    """
     rows, cols = mask.shape
     count = sample.shape[0]
     out = np.zeros((normals.shape[0], offsets.shape[1]))
     for k in range(normals.shape[0]):
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        least = count + 1
         for j in range(offsets.shape[1]):
             bad = 0
             for i in range(count):
+                if bad > least:
+                    break
                 height = (
                     (sample[i, 0] - center[0]) * n0
                     + (sample[i, 1] - center[1]) * n1
@@ -262,6 +271,7 @@ def _mirror_violations(
                 elif math.sqrt(x * x + y * y + z * z) < near[row, col] - tolerance:
                     bad += 1
             out[k, j] = bad / count
+            least = min(least, bad)
     return out
 
 
@@ -375,10 +385,12 @@ def find_mirror_plane(
     positions from the nearest observed point back to one object size behind the farthest. A
     mirrored point contradicts the view when the sensor would have seen it: outside the
     object's outline, or more than `spacing` in front of a seen surface. Per normal, the nearest
-    plane within :data:`MIRROR_SLACK` of its fewest contradictions is kept; over the normals,
-    the fewest contradictions win (in steps of the slack), then the plane nearest the sensor (in
-    steps of `spacing`: the tightest object the view allows), then the normal nearest the
-    preferred one. An evenly spread sample of :data:`MIRROR_SAMPLE` points (taken in sorted
+    position with the fewest contradictions is kept, first on a coarse ladder, then on a fine
+    one around it. Over the normals, among those the view refutes least that put a fifth of the
+    mirror image where the sensor could not see, the observed box's axes go first when the view
+    allows them, then the most compact completion, preferring the normal nearest the viewing
+    direction among those within :data:`COMPACT_SLACK` of it (``docs/single_views.md``). An
+    evenly spread sample of :data:`MIRROR_SAMPLE` points (taken in sorted
     order, so the plane does not depend on the order of the points) is tested.
 
     :param points: (N, 3) observed points.
@@ -416,17 +428,17 @@ def find_mirror_plane(
             spacing,
         )
 
-    # Per normal: the nearest plane within the slack of its fewest contradictions, found on a
+    # Per normal: the nearest position with the fewest contradictions, found on a
     # coarse ladder of positions and then on a fine one around the chosen rung.
     coarse = refuted(planes)
-    chosen = np.argmax(coarse <= coarse.min(axis=1, keepdims=True) + MIRROR_SLACK, axis=1)
+    chosen = np.argmin(coarse, axis=1)
     rows = np.arange(len(normals))
     last = planes.shape[1] - 1
     low = planes[rows, np.maximum(chosen - 1, 0)]
     high = planes[rows, np.minimum(chosen + 1, last)]
     fine = low[:, None] + np.linspace(0.0, 1.0, MIRROR_REFINE)[None, :] * (high - low)[:, None]
     refined = refuted(fine)
-    pick = np.argmax(refined <= refined.min(axis=1, keepdims=True) + MIRROR_SLACK, axis=1)
+    pick = np.argmin(refined, axis=1)
     bad = refined[rows, pick]
     offsets = fine[rows, pick]
     # Over the normals: the planes the view refutes least (within two sample points) are
@@ -491,25 +503,13 @@ def _completion_size(
 
 def _hull_area(points: FloatArray) -> float:
     """Return the area of the convex hull of 2D `points` (0 for fewer than three or a line)."""
-    order = np.lexsort((points[:, 1], points[:, 0]))
-    ordered = points[order]
-
-    def chain(rows: FloatArray) -> list[FloatArray]:
-        hull: list[FloatArray] = []
-        for row in rows:
-            while len(hull) >= 2:
-                a, b = hull[-2], hull[-1]
-                if (b[0] - a[0]) * (row[1] - a[1]) - (b[1] - a[1]) * (row[0] - a[0]) > 0.0:
-                    break
-                hull.pop()
-            hull.append(row)
-        return hull
-
-    ring = chain(ordered)[:-1] + chain(ordered[::-1])[:-1]
-    if len(ring) < 3:
+    x = np.ascontiguousarray(points[:, 0])
+    y = np.ascontiguousarray(points[:, 1])
+    ring = np.empty(len(points) + 1, dtype=np.int64)
+    size = hull_2d_kernel(x, y, np.arange(len(points)), len(points), ring)
+    if size < 3:
         return 0.0
-    xs = np.array([r[0] for r in ring])
-    ys = np.array([r[1] for r in ring])
+    xs, ys = x[ring[:size]], y[ring[:size]]
     return 0.5 * abs(float(xs @ np.roll(ys, -1) - ys @ np.roll(xs, -1)))
 
 
@@ -555,40 +555,36 @@ def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     The estimated part of a solid is sampled densely along rays that run side by side; one point
     per cell keeps its shape (the decomposition only needs its bounds and a fair count) at a
     fraction of the points. The point kept is the cell's lowest in x, then y, then z, so the
-    choice does not depend on the order of the points.
+    choice does not depend on the order of the points. The cells are coarser when that would
+    make more than :data:`MAX_SOLID_SIDE` cells along a side.
     """
     count = points.shape[0]
     if count == 0:
         return np.zeros(0, dtype=np.int64)
     low = np.empty(3)
-    span = np.empty(3, dtype=np.int64)
+    widest = 0.0
     for axis in range(3):
         low[axis] = points[:, axis].min()
+        widest = max(widest, points[:, axis].max() - low[axis])
+    cell = max(cell, widest / MAX_SOLID_SIDE)
+    span = np.empty(3, dtype=np.int64)
+    for axis in range(3):
         span[axis] = int((points[:, axis].max() - low[axis]) / cell) + 1
-    keys = np.empty(count, dtype=np.int64)
+    best = np.full(span[0] * span[1] * span[2], -1, dtype=np.int64)
     for i in range(count):
         key = 0
         for axis in range(3):
             key = key * span[axis] + int((points[i, axis] - low[axis]) / cell)
-        keys[i] = key
-    order = np.argsort(keys, kind='mergesort')
-    keep = np.empty(count, dtype=np.int64)
-    kept = 0
-    best = order[0]
-    for k in range(1, count + 1):
-        if k == count or keys[order[k]] != keys[best]:
-            keep[kept] = best
-            kept += 1
-            if k < count:
-                best = order[k]
+        other = best[key]
+        if other < 0:
+            best[key] = i
             continue
-        candidate = order[k]
         for axis in range(3):
-            if points[candidate, axis] != points[best, axis]:
-                if points[candidate, axis] < points[best, axis]:
-                    best = candidate
+            if points[i, axis] != points[other, axis]:
+                if points[i, axis] < points[other, axis]:
+                    best[key] = i
                 break
-    return np.sort(keep[:kept])
+    return np.sort(best[best >= 0])
 
 
 def _rays(points: FloatArray, viewpoint: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -637,22 +633,36 @@ def fill_to_box(points: FloatArray, viewpoint: FloatArray, box: Box, step: float
     return _samples(points, directions, lengths, step)
 
 
+@nb.njit('int64[:](float64[:], float64[:], float64[:], float64)', cache=True)
+def _column_tops(
+    across: FloatArray, along: FloatArray, height: FloatArray, step: float
+) -> IndexArray:
+    """Return the index of the highest point of every occupied `step`-wide column (sorted)."""
+    count = across.shape[0]
+    low_a, low_b = across.min(), along.min()
+    width = int((across.max() - low_a) / step) + 1
+    depth = int((along.max() - low_b) / step) + 1
+    best = np.full(width * depth, -1, dtype=np.int64)
+    for i in range(count):
+        cell = int((across[i] - low_a) / step) * depth + int((along[i] - low_b) / step)
+        if best[cell] < 0 or height[i] > height[best[cell]]:
+            best[cell] = i
+    return np.sort(best[best >= 0])
+
+
 def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) -> FloatArray:
     """
     Sample straight down from the top of every footprint column to the height `lowest`.
 
-    The footprint is cut into `step`-wide columns across `up`; each column's highest point is
-    the top of a column of samples every `step` (the object stands on something below it).
+    The footprint is cut into `step`-wide columns across `up` (coarser when that would make
+    more than :data:`MAX_RASTER_SIDE` columns along a side); each column's highest point is the
+    top of a column of samples every `step` (the object stands on something below it).
     """
     first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
     first /= np.linalg.norm(first)
-    second = np.cross(up, first)
-    height = points @ up
-    column = np.floor(np.column_stack([points @ first, points @ second]) / step).astype(np.int64)
-    column -= column.min(axis=0)
-    key = column[:, 0] * (int(column[:, 1].max()) + 1) + column[:, 1]
-    order = np.lexsort((-height, key))
-    tops = order[np.r_[True, key[order][1:] != key[order][:-1]]]
+    across, along, height = points @ first, points @ np.cross(up, first), points @ up
+    widest = max(float(np.ptp(across)), float(np.ptp(along)))
+    tops = _column_tops(across, along, height, max(step, widest / MAX_RASTER_SIDE))
     down = np.repeat(-up[None, :], len(tops), axis=0)
     return _samples(points[tops], down, height[tops] - lowest, step)
 
