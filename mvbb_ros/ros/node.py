@@ -62,6 +62,7 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -474,8 +475,17 @@ def main(args: Sequence[str] | None = None) -> int:
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        _shutdown()
     return 0
+
+
+def _shutdown() -> None:
+    """Shut rclpy down unless SIGINT's handler did so first (it runs on its own thread)."""
+    try:
+        rclpy.try_shutdown()
+    except rclpy_implementation.RCLError as error:
+        if 'already called' not in str(error):
+            raise
 
 
 if __name__ == '__main__':
