@@ -8,6 +8,7 @@ checks that the caller's cache is not used any more.
 """
 
 import importlib
+import json
 import os
 from pathlib import Path
 import re
@@ -122,3 +123,75 @@ def test_an_edited_callee_in_another_file_recompiles_the_kernel(tmp_path):
     callee.write_text(textwrap.dedent(CALLEE.format(value=2)))
     assert run() == (2, 0, 1)  # the caller's file is unchanged, its cache is not used
     assert run() == (2, 1, 0)
+
+
+_ROUND_TRIP = """
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from ros_graph import l_shape_points
+from mvbb_ros import kernels
+from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.settings import PipelineSettings
+import importlib
+import mvbb_ros
+
+assert mvbb_ros.__file__.startswith(sys.argv[2]), mvbb_ros.__file__
+kernels.warm_up()
+answers = []
+for cloud in (l_shape_points(), segmented_object_cloud('mug', seed=3)):
+    result = process_points(cloud, PipelineSettings())
+    boxes = [np.concatenate([leaf.center, leaf.extents]) for leaf in result.leaves]
+    grasps = [grasp.position for grasp in result.grasps]
+    answers.append([np.round(boxes, 9).tolist(), np.round(grasps, 9).tolist()])
+hits = misses = 0
+for name in kernels.KERNEL_MODULES:
+    for _, dispatcher in kernels._dispatchers(importlib.import_module(name)):
+        hits += sum(dispatcher.stats.cache_hits.values())
+        misses += sum(dispatcher.stats.cache_misses.values())
+print(json.dumps({'answers': answers, 'hits': hits, 'misses': misses}))
+"""
+
+
+def test_cached_kernels_answer_as_freshly_compiled_ones(tmp_path):
+    """
+    A kernel loaded from numba's cache gives the answers it gave when compiled.
+
+    Not a given: with numba 0.68, a clustering kernel that called ``np.searchsorted``,
+    recompiled in a process that had loaded the other kernels from the cache (as after an edit
+    of its module), was saved so that every later load answered wrongly (2,792 clusters in one
+    L-shaped cloud instead of 1). On a copy of the package with no cache: the first run compiles
+    every kernel; then, one kernel module at a time, its cache goes (an edit), one run
+    recompiles it among cached ones and the next loads it; every run must answer alike.
+    """
+    shutil.copytree(PACKAGE, tmp_path / 'mvbb_ros', ignore=shutil.ignore_patterns('__pycache__'))
+    env = {key: value for key, value in os.environ.items() if key != 'NUMBA_CACHE_DIR'}
+    env['PYTHONPATH'] = str(tmp_path)
+
+    def run() -> dict:
+        completed = subprocess.run(
+            [sys.executable, '-c', _ROUND_TRIP, str(REPO_ROOT / 'test'), str(tmp_path)],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            check=True,
+        )
+        return json.loads(completed.stdout.strip().splitlines()[-1])
+
+    compiled = run()
+    assert compiled['misses'] > 0 and compiled['hits'] == 0, 'the first run must compile'
+    assert len(compiled['answers'][0][0]) == 2, 'the L shape is two boxes'
+    for name in kernels.KERNEL_MODULES:
+        folder = tmp_path.joinpath(*name.split('.')[:-1], '__pycache__')
+        stem = name.rsplit('.', 1)[-1]
+        removed = list(folder.glob(f'{stem}.*.nb[ic]'))
+        assert removed, f'no cache files of {name} in {folder}'
+        for path in removed:
+            path.unlink()
+        recompiled, loaded = run(), run()
+        assert recompiled['misses'] > 0 and loaded['misses'] == 0, name
+        assert recompiled['answers'] == compiled['answers'], f'{name} recompiled'
+        assert loaded['answers'] == compiled['answers'], f'{name} loaded from the cache'

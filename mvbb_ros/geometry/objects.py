@@ -14,6 +14,7 @@ from __future__ import annotations
 import itertools
 
 from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.geometry.cells import cell_grid, cell_key, cell_start
 from mvbb_ros.geometry.completion import view_raster
 import numba as nb
 import numpy as np
@@ -44,34 +45,19 @@ def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
     Label the Euclidean clusters of `points` at `tolerance` (labels 0 .. k-1, by first point).
 
     Points are binned in cubic cells one tolerance wide; each point is compared with the points
-    of its own cell and the 26 around it (found by binary search in the sorted cell keys), and
+    of its own cell and the 26 around it (:mod:`mvbb_ros.geometry.cells`), and
     pairs closer than the tolerance are joined in a union-find forest. O(N) for even clouds.
     """
     count = points.shape[0]
-    low = np.empty(3)
-    span = np.empty(3, dtype=np.int64)
-    for axis in range(3):
-        low[axis] = points[:, axis].min()
-        span[axis] = int((points[:, axis].max() - low[axis]) / tolerance) + 3
-    cells = np.empty((count, 3), dtype=np.int64)
-    keys = np.empty(count, dtype=np.int64)
-    for i in range(count):
-        for axis in range(3):
-            cells[i, axis] = int((points[i, axis] - low[axis]) / tolerance) + 1
-        keys[i] = (cells[i, 0] * span[1] + cells[i, 1]) * span[2] + cells[i, 2]
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
+    cells, span, order, sorted_keys = cell_grid(points, tolerance, 1)
     parent = np.arange(count)
     squared = tolerance * tolerance
     for i in range(count):
         for dx in range(-1, 2):
             for dy in range(-1, 2):
                 for dz in range(-1, 2):
-                    key = ((cells[i, 0] + dx) * span[1] + cells[i, 1] + dy) * span[2] + (
-                        cells[i, 2] + dz
-                    )
-                    start = np.searchsorted(sorted_keys, key)
-                    for k in range(start, count):
+                    key = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] + dz, span)
+                    for k in range(cell_start(sorted_keys, key), count):
                         if sorted_keys[k] != key:
                             break
                         j = order[k]
