@@ -29,6 +29,9 @@ from numba.core.registry import CPUDispatcher
 #: Every module with numba kernels, each defining ``warm_up()``.
 KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.geometry.cells',
+    'mvbb_ros.pipeline.decode',
+    'mvbb_ros.pipeline.filtering',
+    'mvbb_ros.pipeline.outliers',
     'mvbb_ros.geometry.rectangle',
     'mvbb_ros.geometry.hull',
     'mvbb_ros.geometry.search',

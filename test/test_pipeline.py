@@ -7,7 +7,7 @@ from types import SimpleNamespace
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 from mvbb_ros.pipeline.decode import CloudFormatError, read_points, read_xyz
-from mvbb_ros.pipeline.process import decode_cloud, process_cloud
+from mvbb_ros.pipeline.process import decode_cloud, process_cloud, process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
@@ -106,7 +106,7 @@ def test_read_points_on_rclpy_messages_and_empty_clouds():
     grid = holed_grid((30, 40), seed=1)
     cloud = create_cloud_xyz(grid.reshape(-1, 3), organized_shape=grid.shape[:2])
     np.testing.assert_array_equal(read_points(cloud), read_xyz(cloud))
-    assert decode_cloud(cloud).dtype == np.float32
+    assert decode_cloud(cloud).points.dtype == np.float32
     empty = create_cloud_xyz(np.empty((0, 3)))
     assert read_points(empty).shape == (0, 3)
     assert read_points(raw_cloud(np.empty((0, 4, 3)), (8, 8, 8), (0, 8, 16), 24)).dtype == (
@@ -153,28 +153,23 @@ def l_shape(count: int = 40_000, seed: int = 0) -> np.ndarray:
     return points.astype(np.float32)
 
 
-def test_both_voxel_backends_give_the_same_boxes():
-    cloud = create_cloud_xyz(l_shape(), frame_id='camera')
-    ours = process_cloud(cloud, PipelineSettings())
-    theirs = process_cloud(cloud, PipelineSettings().updated({'voxel_backend': 'open3d'}))
+def test_the_crop_while_decoding_gives_what_the_filters_give_on_points():
+    points = l_shape()
+    cloud = create_cloud_xyz(points, frame_id='camera')
+    settings = PipelineSettings().updated(
+        {'crop_min': [0.0, 0.0, 0.0], 'crop_max': [0.15, 1.0, 1.0]}
+    )
+    decoded = process_cloud(cloud, settings)
+    plain = process_points(points, settings)
 
-    assert ours.warning is None and theirs.warning is None
-    assert ours.counts == theirs.counts
-    # The same voxel centroids, to rounding (the backends sum them in different orders).
-    mine, other = ours.objects[0].shape.points, theirs.objects[0].shape.points
-    np.testing.assert_allclose(mine[np.lexsort(mine.T)], other[np.lexsort(other.T)], atol=1e-12)
-    assert len(ours.leaves) == len(theirs.leaves) == 2
-    for mine, other in zip(
-        sorted(ours.leaves, key=lambda box: box.volume),
-        sorted(theirs.leaves, key=lambda box: box.volume),
-        strict=True,
-    ):
-        # The same boxes to the fit's precision: on solid blocks the smallest box sits in a flat
-        # valley, and a 1e-16 change of the points can move the search's end by 1e-4 of the
-        # volume (the fit promises 1 % of the best box, not bit-for-bit stability).
-        assert mine.volume == pytest.approx(other.volume, rel=1e-3)
-        np.testing.assert_allclose(mine.center, other.center, atol=1e-4)
-    assert set(ours.timings_ms) == {
+    assert decoded.warning is None and plain.warning is None
+    assert decoded.counts == plain.counts
+    assert decoded.counts.finite == len(points) > decoded.counts.cropped
+    assert len(decoded.leaves) == len(plain.leaves) == 2
+    for mine, other in zip(decoded.leaves, plain.leaves, strict=True):
+        assert mine.volume == other.volume
+        np.testing.assert_array_equal(mine.center, other.center)
+    assert set(decoded.timings_ms) == {
         'decode',
         'filter',
         'objects',
@@ -184,6 +179,6 @@ def test_both_voxel_backends_give_the_same_boxes():
     }
 
 
-def test_voxel_backend_setting_is_validated():
-    with pytest.raises(ValueError, match='voxel_backend'):
-        PipelineSettings().updated({'voxel_backend': 'pcl'})
+def test_the_voxel_backend_setting_is_gone_and_says_why():
+    with pytest.raises(ValueError, match="voxel_backend was replaced by nothing.*Open3D's"):
+        PipelineSettings().updated({'voxel_backend': 'numpy'})

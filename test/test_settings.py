@@ -26,7 +26,6 @@ from mvbb_ros.pipeline.settings import (
     STAGE_DEFAULT,
     STAGES,
     ViewSettings,
-    VOXEL_BACKENDS,
 )
 import numpy as np
 import pytest
@@ -66,7 +65,6 @@ def test_choice_lists_are_defined_once_with_their_stage():
     assert SPEC_BY_NAME['split_measure'].choices is SPLIT_MEASURES
     assert SPEC_BY_NAME['grasp_strategy'].choices is STRATEGIES
     assert SPEC_BY_NAME['approach_axis'].choices is APPROACH_AXES
-    assert SPEC_BY_NAME['voxel_backend'].choices is VOXEL_BACKENDS
     assert SPEC_BY_NAME['shape_completion'].choices is COMPLETIONS
     for spec in SPECS:
         if spec.choices:

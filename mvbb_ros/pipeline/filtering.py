@@ -1,54 +1,566 @@
 """
-Point cloud filtering before the box fit: crop, voxel down-sampling, statistical outliers.
+Point cloud filtering before the objects and the box fit: crop, voxel grid, outliers.
 
 Each step can be turned off (:class:`~mvbb_ros.pipeline.settings.FilterSettings`, whose
 defaults turn them all off; the node turns the voxel grid and the outliers on). Steps run in
-that order:
-cropping first makes the others cheaper, and outlier statistics are steadier on the evenly spaced
-voxel centroids than on raw sensor points.
+that order: cropping first makes the others cheaper, and outlier statistics are steadier on the
+evenly spaced voxel centroids than on raw sensor points. The voxel grid and the crop are
+compiled kernels here (numba); the statistical outlier removal is in
+:mod:`mvbb_ros.pipeline.outliers`. Both compute exactly what Open3D's ``voxel_down_sample`` and
+``remove_statistical_outlier`` compute (``test/test_filtering.py`` and ``test/test_outliers.py``
+compare them bit for bit), in about half of the time on one core, and the pipeline needs no
+Open3D (importing it alone takes about 2 s).
 
-Voxel down-sampling: numpy by default, Open3D's as an option
-----------------------------------------------------------------
-The filters were Open3D's at first. The voxel step is now computed with numpy by default
-(``voxel_backend = 'numpy'``, :func:`voxel_down_sample`) because on full depth frames it
-was the most expensive step around the decomposition, and Open3D's needs a float64 copy of the
-whole cloud first: on a 300k-point frame (one core, ``benchmarks/pipeline.py``) the Open3D
-conversion and ``voxel_down_sample`` took about 1 + 7.5 ms, the numpy grid about 2-3 ms straight
-from the decoder's float32 points. It computes the same thing as Open3D's: the grid is anchored
-where Open3D anchors it (half a voxel below the cloud's minimum corner), a point falls in voxel
-``floor((p - anchor) / voxel_size)`` computed in float64, and each occupied voxel becomes the
-float64 mean of its points. So the centroids are Open3D's up to float rounding of the sums
-(``test/test_filtering.py`` checks this); only their order differs (numpy: sorted by voxel
-index; Open3D: its hash map's order). Measured effect on the 29 shared scans and the Bunny with
-the default settings: 29 of 30 give the same boxes and leaf volume; ``bunny_rangescan_bun090``
-gives 8 boxes (401 cm^3) instead of 6 (507 cm^3). That one is the decomposition's sensitivity to
-point order, not a different filter: the same Open3D centroids give 6 or 8 boxes depending on
-how they are shuffled (1 of 6 shuffles gives 8). ``voxel_backend = 'open3d'`` restores
-Open3D's step.
+The crop and the decoder
+------------------------
+The crop box is applied by the decoder while it decodes a message
+(:func:`mvbb_ros.pipeline.decode.decode_points`, on :func:`inside_box` and :func:`crop_box`
+from here), which also measures the kept points' bounds and counts the finite points:
+:func:`filter_points` takes both (`bounds`, `finite`) and then neither crops again nor measures
+the points again. Given plain points, it crops them itself, fused with the voxel pass.
 
-How the voxels are grouped: when the cloud's grid has at most :data:`DENSE_GRID_FACTOR` times as
-many cells as there are points (a segmented object: tens of thousands of cells), the points are
-counted and summed with ``np.bincount`` on the dense grid (linear time, no sort); otherwise (a
-lidar sweep spanning tens of metres) the voxel keys are sorted with ``np.unique``.
+The voxel grid: Open3D's centroids, sorted by voxel
+---------------------------------------------------
+What it computes is Open3D's ``voxel_down_sample``: the grid is anchored half a voxel below the
+minimum corner of the (cropped) cloud, a point falls in voxel ``floor((p - anchor) / size)``
+computed in float64 (a true division, as Open3D), and every occupied voxel becomes the float64
+mean of its points, summed in input order and divided by the count, as Open3D does. So the
+centroids are Open3D's bit for bit. Their order is ours: sorted by voxel index (x slowest, z
+fastest), not the order in which voxels are first met (which the kernel produces) nor Open3D's
+hash order. The decomposition depends on the order of its points (the box fit samples them), so
+the order is a choice with consequences: sorted, the same points in any order give the same
+centroids in the same order, so the same boxes (a driver or a file that lists the points
+differently changes nothing), and the boxes are those of the numpy grid this replaced. The sort
+costs about 0.05 ms for the 1,000 voxels of a 300k-point object frame (first-met order would
+have made the boxes of one shared scan in 30 change with the row order of the sensor).
 
-The statistical outlier removal stays Open3D's ``remove_statistical_outlier`` in both cases: it
-runs on the voxel centroids (about a thousand for one object), where it costs a millisecond or
-two, and scipy's KD-tree was not faster.
+Two passes over the points, float32 or float64 as they come from the decoder (no float64 copy):
+
+1. :func:`_crop_bounds`: count the points inside the crop box (bounds included) and take their
+   bounding box; a non-finite point stops it with an error. Skipped when the decoder already
+   measured the bounds.
+2. :func:`_voxel_grid`: group the points by voxel in one sequential pass, block by block.
+
+Why the second pass is fast:
+
+- *SIMD divisions.* Each block of 512 points first gets its voxel indices in a plain loop that
+  compiles to vector divisions (:func:`_block_voxels`); one float64 division at a time was
+  60 % of the pass.
+- *Runs are summed in registers.* While consecutive points stay in one voxel (about 6 points
+  per run on a depth frame at 5 mm), the voxel's sums live in registers; they are loaded when
+  the run starts and stored when it ends, so every point is still added in input order (the
+  same rounding as Open3D's per-point sums).
+- *Lookup on change only*, in an open-addressing hash table keyed by the three voxel indices.
+  One structure for every extent: a segmented object and a lidar sweep over hundreds of metres
+  alike (a dense grid of slot numbers measured 8-20 % faster on objects, not worth a second
+  implementation). Slots and table start at 4096 and double, so memory is linear in the number
+  of occupied voxels, never in the extent.
+
+Limits: as Open3D, each axis may hold up to ``2**31 - 1`` voxels; a larger grid (a voxel too
+small for the extent, or absurd coordinates such as 1e38) is refused with a ValueError before
+anything is allocated.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
-from mvbb_ros.pipeline.settings import VOXEL_BACKENDS, VoxelBackend
+from mvbb_ros.pipeline.outliers import remove_statistical_outliers
+from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-import open3d as o3d
 
-#: The dense grid (bincount) is used when it has at most this many cells per point.
-DENSE_GRID_FACTOR = 8
-#: ... or at most this many cells in all, whatever the point count (a few MB of counts).
-DENSE_GRID_MIN_CELLS = 1 << 18
+__all__ = [
+    'BOX',
+    'FilterCounts',
+    'crop_box',
+    'crop_points',
+    'filter_points',
+    'inside_box',
+    'voxel_down_sample',
+]
+
+#: Largest voxel index along one axis (Open3D's limit: a C int).
+MAX_AXIS_VOXELS = 2**31 - 1
+
+_POINT_TYPES = (types.float32, types.float64)
+
+
+def _points_type(dtype: Any) -> Any:
+    return types.Array(dtype, 2, 'C', readonly=True)
+
+
+#: A crop box as a tuple (x0, y0, z0, x1, y1, z1): scalars the compiler keeps in registers
+#: (read from an array inside the loop, the bounds made the pass 7 x slower).
+BOX = types.UniTuple(types.float64, 6)
+
+
+@njit
+def inside_box(x: Any, y: Any, z: Any, box: Any) -> Any:
+    """Tell whether a point is inside ``box = (x0, y0, z0, x1, y1, z1)``, bounds included."""
+    # & rather than `and`: no branches, so that the loops around it compile to SIMD code.
+    inside_x = (box[0] <= x) & (x <= box[3])
+    return inside_x & (box[1] <= y) & (y <= box[4]) & (box[2] <= z) & (z <= box[5])
+
+
+def crop_box(
+    crop_min: ArrayLike | None, crop_max: ArrayLike | None
+) -> tuple[tuple[float, ...], bool]:
+    """
+    Return the crop box as (x0, y0, z0, x1, y1, z1) and whether there is one.
+
+    :param crop_min: lower corner; None or empty: no crop.
+    :param crop_max: upper corner; None or empty: no crop.
+    :return: the box (zeros when there is none) and whether to crop.
+    :raises ValueError: the corners are not two 3-vectors without NaN.
+    """
+    if crop_min is None or crop_max is None or not np.size(crop_min) or not np.size(crop_max):
+        return (0.0,) * 6, False
+    corners = np.concatenate(
+        [np.asarray(crop_min, float).reshape(-1), np.asarray(crop_max, float).reshape(-1)]
+    )
+    if corners.shape != (6,) or np.isnan(corners).any():
+        raise ValueError(
+            f'crop corners must be two 3-vectors without NaN, got {crop_min}, {crop_max}'
+        )
+    return tuple(float(value) for value in corners), True
+
+
+@njit(
+    [
+        types.int64(_points_type(dtype), BOX, types.boolean, types.float64[:, ::1])
+        for dtype in _POINT_TYPES
+    ],
+    cache=True,
+)
+def _crop_bounds(points: Any, box: Any, crop: Any, bounds: Any) -> Any:
+    """
+    Count the points inside the crop box and write their min/max corners into `bounds`.
+
+    :return: the count, or ``-1 - i`` when point ``i`` is not finite (then nothing is valid).
+    """
+    min_x = min_y = min_z = np.inf
+    max_x = max_y = max_z = -np.inf
+    count = 0
+    for i in range(points.shape[0]):
+        x = np.float64(points[i, 0])
+        y = np.float64(points[i, 1])
+        z = np.float64(points[i, 2])
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+            return -1 - i
+        if not crop or inside_box(x, y, z, box):
+            count += 1
+            min_x = min(min_x, x)
+            max_x = max(max_x, x)
+            min_y = min(min_y, y)
+            max_y = max(max_y, y)
+            min_z = min(min_z, z)
+            max_z = max(max_z, z)
+    bounds[0, 0] = min_x
+    bounds[0, 1] = min_y
+    bounds[0, 2] = min_z
+    bounds[1, 0] = max_x
+    bounds[1, 1] = max_y
+    bounds[1, 2] = max_z
+    return count
+
+
+@njit
+def _hash(i: Any, j: Any, k: Any, mask: Any) -> Any:
+    mixed = (
+        np.uint64(i) * np.uint64(0x9E3779B97F4A7C15)
+        ^ np.uint64(j) * np.uint64(0xC2B2AE3D27D4EB4F)
+        ^ np.uint64(k) * np.uint64(0x165667B19E3779F9)
+    )
+    return np.int64((mixed ^ (mixed >> np.uint64(31))) & mask)
+
+
+@njit
+def _clamped(ratio: Any, top: Any) -> Any:
+    """Return ``int(ratio)`` clamped to ``[0, top]`` (0 for NaN: the conversion is defined)."""
+    low = ratio if ratio >= 0.0 else 0.0
+    return np.int64(low if low <= top else top)
+
+
+@njit
+def _block_voxels(
+    flat: Any,
+    start: Any,
+    count: Any,
+    anchor: Any,
+    size: Any,
+    top: Any,
+    box: Any,
+    crop: Any,
+    voxel_x: Any,
+    voxel_y: Any,
+    voxel_z: Any,
+    keep: Any,
+) -> Any:
+    """
+    Voxel indices of points ``start .. start + count`` (exact float64 division) and crop flags.
+
+    A plain loop over a flat view with unsigned indices, so that it compiles to SIMD divisions
+    (about 4 x faster than one division at a time). Indices are clamped to ``[0, top]``: a
+    point outside the crop box may be anywhere, and the clamp keeps every index inside the grid
+    whatever the points are (a kept point inside the bounds is never clamped).
+
+    :return: how many kept points fall outside the grid (bounds that do not hold the points).
+    """
+    anchor_x, anchor_y, anchor_z = anchor
+    top_x, top_y, top_z = top
+    first = np.uint64(3) * np.uint64(start)
+    escaped = 0
+    for j in range(np.uint64(count)):
+        at = first + np.uint64(3) * j
+        x = np.float64(flat[at])
+        y = np.float64(flat[at + np.uint64(1)])
+        z = np.float64(flat[at + np.uint64(2)])
+        # (p - anchor) >= 0 inside the bounds, so truncation is Open3D's floor.
+        ratio_x = (x - anchor_x) / size
+        ratio_y = (y - anchor_y) / size
+        ratio_z = (z - anchor_z) / size
+        voxel_x[j] = _clamped(ratio_x, top_x)
+        voxel_y[j] = _clamped(ratio_y, top_y)
+        voxel_z[j] = _clamped(ratio_z, top_z)
+        kept = not crop or inside_box(x, y, z, box)
+        keep[j] = kept
+        # Written so that NaN counts as outside (a non-finite point with trusted bounds).
+        inside = (ratio_x >= 0.0) & (ratio_y >= 0.0) & (ratio_z >= 0.0)
+        inside &= (ratio_x < top_x + 1.0) & (ratio_y < top_y + 1.0) & (ratio_z < top_z + 1.0)
+        escaped += kept & ~inside
+    return escaped
+
+
+#: Points per block of :func:`_group` (index buffers of 4 x 512 values stay in L1).
+_BLOCK = 512
+#: Voxel slots to start with (doubled as needed).
+_FIRST_CAPACITY = 4096
+
+
+@njit
+def _save(state: Any, x: Any, y: Any, z: Any, slot: Any, count: Any, used: Any) -> None:
+    state[0], state[1], state[2], state[3], state[4], state[5] = x, y, z, slot, count, used
+
+
+@njit
+def _group(
+    points: Any,
+    box: Any,
+    crop: Any,
+    anchor: Any,
+    size: Any,
+    shape: Any,
+    table: Any,
+    voxels: Any,
+    sums: Any,
+    counts: Any,
+    state: Any,
+    running: Any,
+) -> Any:
+    """
+    Add points to their voxels from ``state[5]`` on, until the end or until the arrays are full.
+
+    `table` (open addressing, linear probing) maps a voxel to its slot in `sums`, `counts` and
+    `voxels`; slots are given in the order voxels are first met. The loop state
+    lives in `state` (current voxel x, y, z, its slot, its count, slots used, next point) and
+    `running` (the current voxel's sums): while consecutive points stay in one voxel its sums
+    stay in registers, loaded when the run starts and stored when it ends, so each point is
+    still added to its voxel's sum in input order. Returns early, before taking a new slot, when
+    the slot arrays are full or the hash table would be more than half full: the caller grows
+    them and calls again. The arrays are arguments, never reassigned here (reassigning arrays
+    inside the loop made numba's code 2.4 x slower).
+
+    :return: the index of the next point to add (``len(points)`` when done), or -1 when a
+        point falls outside the grid (the bounds given do not hold the points).
+    """
+    flat = points.reshape(-1)
+    top = (float(shape[0] - 1), float(shape[1] - 1), float(shape[2] - 1))
+    mask = np.uint64(table.shape[0] - 1)
+    block_x = np.empty(_BLOCK, dtype=np.int64)
+    block_y = np.empty(_BLOCK, dtype=np.int64)
+    block_z = np.empty(_BLOCK, dtype=np.int64)
+    keep = np.empty(_BLOCK, dtype=np.bool_)
+    current_x, current_y, current_z = state[0], state[1], state[2]
+    slot, count, used, first = state[3], state[4], state[5], state[6]
+    sum_x, sum_y, sum_z = running[0], running[1], running[2]
+    total = points.shape[0]
+    for start in range(first, total, _BLOCK):
+        length = min(_BLOCK, total - start)
+        if _block_voxels(
+            flat, start, length, anchor, size, top, box, crop, block_x, block_y, block_z, keep
+        ):
+            return -1
+        for j in range(length):
+            if not keep[j]:
+                continue
+            index_x, index_y, index_z = block_x[j], block_y[j], block_z[j]
+            if index_x != current_x or index_y != current_y or index_z != current_z:
+                at = _hash(index_x, index_y, index_z, mask)
+                found = table[at]
+                while found >= 0 and not (
+                    voxels[found, 0] == index_x
+                    and voxels[found, 1] == index_y
+                    and voxels[found, 2] == index_z
+                ):
+                    at = (at + 1) & np.int64(mask)
+                    found = table[at]
+                if found < 0 and (used == sums.shape[0] or 2 * (used + 1) > table.shape[0]):
+                    _save(state, current_x, current_y, current_z, slot, count, used)
+                    state[6] = start + j
+                    running[0], running[1], running[2] = sum_x, sum_y, sum_z
+                    return start + j
+                if slot >= 0:  # close the run of the previous voxel
+                    sums[slot, 0] = sum_x
+                    sums[slot, 1] = sum_y
+                    sums[slot, 2] = sum_z
+                    counts[slot] = count
+                current_x, current_y, current_z = index_x, index_y, index_z
+                if found < 0:  # a new voxel
+                    found = used
+                    used += 1
+                    table[at] = found
+                    voxels[found, 0] = index_x
+                    voxels[found, 1] = index_y
+                    voxels[found, 2] = index_z
+                    sums[found, 0] = sums[found, 1] = sums[found, 2] = 0.0
+                    counts[found] = 0
+                slot = found
+                sum_x = sums[slot, 0]
+                sum_y = sums[slot, 1]
+                sum_z = sums[slot, 2]
+                count = counts[slot]
+            row = start + j
+            sum_x += np.float64(points[row, 0])
+            sum_y += np.float64(points[row, 1])
+            sum_z += np.float64(points[row, 2])
+            count += 1
+    if slot >= 0:
+        sums[slot, 0] = sum_x
+        sums[slot, 1] = sum_y
+        sums[slot, 2] = sum_z
+        counts[slot] = count
+    _save(state, current_x, current_y, current_z, slot, count, used)
+    state[6] = total
+    return total
+
+
+@njit
+def _doubled(array: Any, used: Any) -> Any:
+    bigger = np.empty((2 * array.shape[0], array.shape[1]), dtype=array.dtype)
+    for row in range(used):  # loops, not slices: numba's slice code takes seconds to compile
+        for column in range(array.shape[1]):
+            bigger[row, column] = array[row, column]
+    return bigger
+
+
+@njit
+def _rehashed(voxels: Any, used: Any, length: Any) -> Any:
+    """Return a hash table of `length` slots (a power of two) for voxels ``0 .. used - 1``."""
+    table = np.full(length, -1, dtype=np.int32)
+    mask = np.uint64(length - 1)
+    for slot in range(used):
+        at = _hash(voxels[slot, 0], voxels[slot, 1], voxels[slot, 2], mask)
+        while table[at] >= 0:
+            at = (at + 1) & np.int64(mask)
+        table[at] = slot
+    return table
+
+
+@njit(
+    [
+        types.Tuple((types.float64[:, ::1], types.int64[::1], types.int64[:, ::1], types.boolean))(
+            _points_type(dtype),
+            types.int64,
+            BOX,
+            types.boolean,
+            types.UniTuple(types.float64, 3),
+            types.float64,
+            types.UniTuple(types.int64, 3),
+        )
+        for dtype in _POINT_TYPES
+    ],
+    cache=True,
+)
+def _voxel_grid(
+    points: Any, inside: Any, box: Any, crop: Any, anchor: Any, size: Any, shape: Any
+) -> Any:
+    """
+    Group the points (inside the crop box) by voxel; return centroids, counts, voxels, success.
+
+    Voxels come in the order they are first met. `inside` is the number of points inside the
+    crop box, `shape` the number of voxels along each axis. Slots and table start small and
+    double, so memory stays linear in the number of voxels, whatever the extent.
+    """
+    capacity = max(1, min(inside, _FIRST_CAPACITY))
+    length = 16  # a power of two (the hash is masked), at least twice the slots
+    while length < 2 * capacity:
+        length *= 2
+    table = np.full(length, -1, dtype=np.int32)
+    sums = np.empty((capacity, 3), dtype=np.float64)
+    counts = np.empty((capacity, 1), dtype=np.int64)
+    voxels = np.empty((capacity, 3), dtype=np.int64)
+    state = np.array([-1, -1, -1, -1, 0, 0, 0], dtype=np.int64)
+    running = np.zeros(3, dtype=np.float64)
+    while True:
+        position = _group(
+            points, box, crop, anchor, size, shape, table, voxels, sums, counts[:, 0],
+            state, running,
+        )  # fmt: skip
+        if position == points.shape[0]:
+            break
+        if position < 0:
+            empty = np.empty((0, 3), dtype=np.int64)
+            return np.empty((0, 3), dtype=np.float64), np.empty(0, dtype=np.int64), empty, False
+        used = state[5]
+        if used == sums.shape[0]:
+            sums = _doubled(sums, used)
+            counts = _doubled(counts, used)
+            voxels = _doubled(voxels, used)
+        if 2 * (used + 1) > table.shape[0]:
+            table = _rehashed(voxels, used, 2 * table.shape[0])
+    used = state[5]
+    centroids = np.empty((used, 3), dtype=np.float64)
+    indices = np.empty((used, 3), dtype=np.int64)
+    for voxel in range(used):
+        centroids[voxel, 0] = sums[voxel, 0] / counts[voxel, 0]
+        centroids[voxel, 1] = sums[voxel, 1] / counts[voxel, 0]
+        centroids[voxel, 2] = sums[voxel, 2] / counts[voxel, 0]
+        for axis in range(3):
+            indices[voxel, axis] = voxels[voxel, axis]
+    return centroids, counts[:used, 0].copy(), indices, True
+
+
+def _readonly_points(points: ArrayLike) -> NDArray[np.floating]:
+    array = np.asarray(points)
+    if array.dtype not in (np.float32, np.float64):
+        array = array.astype(np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        array = array.reshape(-1, 3)
+    array = np.ascontiguousarray(array).view()
+    array.flags.writeable = False
+    return array
+
+
+def _checked_bounds(
+    points: NDArray[np.floating], box: tuple[float, ...], crop: bool
+) -> tuple[int, NDArray[np.float64]]:
+    bounds = np.empty((2, 3))
+    count = _crop_bounds(points, box, crop, bounds)
+    if count < 0:
+        bad = -1 - count
+        raise ValueError(f'points must be finite; point {bad} is {points[bad].tolist()}')
+    return count, bounds
+
+
+def _voxel_order(voxels: NDArray[np.int64], shape: tuple[int, ...]) -> NDArray[np.intp]:
+    """Return the order that sorts voxels by index, x slowest and z fastest."""
+    if float(shape[0]) * float(shape[1]) * float(shape[2]) < 2.0**62:
+        keys = (voxels[:, 0] * shape[1] + voxels[:, 1]) * shape[2] + voxels[:, 2]
+        return np.argsort(keys)  # the keys are distinct: any sort gives one order
+    return np.lexsort((voxels[:, 2], voxels[:, 1], voxels[:, 0]))
+
+
+def voxel_down_sample(
+    points: ArrayLike,
+    voxel_size: float,
+    *,
+    crop_min: ArrayLike | None = None,
+    crop_max: ArrayLike | None = None,
+    bounds: ArrayLike | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """
+    Replace the points of each occupied voxel by their centroid (Open3D's voxel_down_sample).
+
+    With a crop box, only the points inside it (bounds included) count, as if the cloud had
+    been cropped first; the grid is then anchored on the cropped points. With `bounds` (from
+    :func:`mvbb_ros.pipeline.decode.decode_xyz`, which measures them while decoding) the pass
+    that checks the points and measures them is skipped: the points are then trusted to be
+    finite, and a point outside the bounds is still caught (ValueError), never indexed out of
+    the grid.
+
+    :param points: finite points ``(N, 3)``, float32 or float64 (other types are converted).
+    :param voxel_size: voxel edge in metres, finite and > 0.
+    :param crop_min: lower corner of an axis-aligned crop box; None or empty: no crop.
+    :param crop_max: upper corner of the crop box.
+    :param bounds: ``(2, 3)``: min and max corners of the points (inside the crop box), if
+        known.
+    :return: the centroids ``(M, 3)`` as float64, sorted by voxel index (x slowest, z fastest;
+        see the module docstring), and how many points each voxel holds ``(M,)`` (their sum is
+        the number of cropped points).
+    :raises ValueError: for a voxel size that is not finite and positive, a non-finite point, or
+        a grid with more than ``2**31 - 1`` voxels along an axis.
+    """
+    if not (np.isfinite(voxel_size) and voxel_size > 0.0):
+        raise ValueError(f'voxel_size must be finite and > 0, got {voxel_size!r}')
+    size = float(voxel_size)
+    array = _readonly_points(points)
+    box, crop = crop_box(crop_min, crop_max)
+    if bounds is None:
+        count, bounds = _checked_bounds(array, box, crop)
+    else:
+        bounds = np.array(bounds, dtype=np.float64).reshape(2, 3)
+        count = len(array)
+        if count and not (np.isfinite(bounds).all() and (bounds[0] <= bounds[1]).all()):
+            raise ValueError(f'bounds must be finite min and max corners, got {bounds.tolist()}')
+    if count == 0:
+        return np.empty((0, 3)), np.empty(0, dtype=np.int64)
+    anchor = bounds[0] - size * 0.5
+    # The largest index along each axis comes from the largest coordinate (rounding is
+    # monotonic); checked in float64 before any integer conversion or allocation.
+    top = np.floor((bounds[1] - anchor) / size)
+    if not np.all(top <= MAX_AXIS_VOXELS - 1):
+        extent = bounds[1] - bounds[0]
+        raise ValueError(
+            f'voxel_size {voxel_size} is too small for a cloud spanning {extent.tolist()}: '
+            f'more than {MAX_AXIS_VOXELS} voxels along an axis'
+        )
+    shape = tuple(int(value) + 1 for value in top)
+    centroids, counts, voxels, done = _voxel_grid(
+        array, count, box, crop, tuple(anchor.tolist()), size, shape
+    )
+    if not done:
+        raise ValueError(f'points outside the given bounds {bounds.tolist()}')
+    order = _voxel_order(voxels, shape)
+    return centroids[order], counts[order]
+
+
+@njit(
+    [types.int64(_points_type(dtype), BOX, types.Array(dtype, 2, 'C')) for dtype in _POINT_TYPES],
+    cache=True,
+)
+def _crop(points: Any, box: Any, out: Any) -> Any:
+    """Copy the points inside the crop box to the first rows of `out`; return how many."""
+    count = 0
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if inside_box(np.float64(x), np.float64(y), np.float64(z), box):
+            out[count, 0] = x
+            out[count, 1] = y
+            out[count, 2] = z
+            count += 1
+    return count
+
+
+def crop_points(
+    points: ArrayLike, crop_min: ArrayLike | None, crop_max: ArrayLike | None
+) -> NDArray[np.floating]:
+    """
+    Keep the points inside an axis-aligned box, bounds included (the crop when voxels are off).
+
+    :param points: points ``(N, 3)``, float32 or float64 (other types are converted); NaN
+        points are never inside.
+    :param crop_min: lower corner; None or empty: no crop (the points are returned as they are).
+    :param crop_max: upper corner.
+    :return: the points inside, in their order and dtype.
+    """
+    array = _readonly_points(points)
+    box, crop = crop_box(crop_min, crop_max)
+    if not crop:
+        return array
+    out = np.empty_like(array)
+    return out[: _crop(array, box, out)]
 
 
 @dataclass(frozen=True)
@@ -61,82 +573,6 @@ class FilterCounts:
     inliers: int
 
 
-def _voxel_keys(
-    columns: list[NDArray[np.float64]], voxel_size: float
-) -> tuple[NDArray[np.int64], int]:
-    """
-    Return each point's voxel as one integer key, and the number of cells of the grid.
-
-    The grid is anchored where Open3D anchors it, half a voxel below the minimum corner, and a
-    point's voxel along each axis is ``floor((p - anchor) / voxel_size)`` in float64: Open3D's
-    arithmetic on the same values. The key is the row-major index in the grid (z fastest).
-    """
-    size = np.float64(voxel_size)
-    lows = [column.min() for column in columns]
-    highs = [column.max() for column in columns]
-    anchors = [low - size * 0.5 for low in lows]
-    # Rounding is monotonic, so the largest coordinate gives the largest index.
-    shape = [int((high - anchor) / size) + 1 for high, anchor in zip(highs, anchors, strict=True)]
-    cells = float(shape[0]) * float(shape[1]) * float(shape[2])
-    if cells >= 2.0**62:
-        raise ValueError(f'voxel_size {voxel_size} is too small for a grid of {shape} voxels')
-    keys = np.zeros(len(columns[0]), dtype=np.int64)
-    for column, anchor, length in zip(columns, anchors, shape, strict=True):
-        ratio = column - anchor
-        ratio /= size
-        # (p - anchor) >= 0, so truncation is the floor.
-        keys *= length
-        keys += ratio.astype(np.int64)
-    return keys, int(cells)
-
-
-def voxel_down_sample(
-    points: ArrayLike, voxel_size: float
-) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
-    """
-    Replace the points of each occupied voxel by their centroid (Open3D's voxel_down_sample).
-
-    :param points: finite points (N, 3), float32 or float64.
-    :param voxel_size: voxel edge in metres, > 0.
-    :return: the centroids (M, 3) as float64, sorted by voxel index (x slowest, z fastest), and
-        how many points each voxel holds (M,).
-    :raises ValueError: for a non-positive voxel size or a grid too fine to index in 64 bits.
-    """
-    pts = np.asarray(points)
-    if pts.dtype not in (np.float32, np.float64):
-        pts = pts.astype(np.float64)
-    pts = pts.reshape(-1, 3)
-    if not voxel_size > 0.0:
-        raise ValueError(f'voxel_size must be > 0, got {voxel_size!r}')
-    if len(pts) == 0:
-        return np.empty((0, 3)), np.empty(0, dtype=np.intp)
-    # One contiguous float64 copy per axis: reductions and bincount weights run on these
-    # (numpy's reductions along axis 0 of an (N, 3) array are several times slower).
-    columns = [np.ascontiguousarray(pts[:, axis], dtype=np.float64) for axis in range(3)]
-    keys, cells = _voxel_keys(columns, voxel_size)
-    if cells <= max(DENSE_GRID_FACTOR * len(pts), DENSE_GRID_MIN_CELLS):
-        # Dense grid: count and sum per cell, then keep the occupied cells (in key order).
-        counts = np.bincount(keys, minlength=cells)
-        occupied = np.flatnonzero(counts)
-        counts = counts[occupied]
-        centroids = np.empty((len(occupied), 3))
-        for axis, column in enumerate(columns):
-            sums = np.bincount(keys, weights=column, minlength=cells)
-            np.divide(sums[occupied], counts, out=centroids[:, axis])
-    else:
-        # Sparse grid: sort the keys, then sum the runs of equal keys.
-        order = np.argsort(keys, kind='stable')  # points keep their order: same sums
-        sorted_keys = keys[order]
-        starts = np.flatnonzero(np.diff(sorted_keys)) + 1
-        starts = np.concatenate(([0], starts))
-        counts = np.diff(np.append(starts, len(sorted_keys)))
-        centroids = np.empty((len(starts), 3))
-        for axis, column in enumerate(columns):
-            sums = np.add.reduceat(column[order], starts)
-            np.divide(sums, counts, out=centroids[:, axis])
-    return centroids, counts.astype(np.intp, copy=False)
-
-
 def filter_points(
     points: ArrayLike,
     *,
@@ -145,7 +581,8 @@ def filter_points(
     outlier_std_ratio: float = 2.0,
     crop_min: ArrayLike | None = None,
     crop_max: ArrayLike | None = None,
-    voxel_backend: VoxelBackend = 'numpy',
+    bounds: ArrayLike | None = None,
+    finite: int | None = None,
 ) -> tuple[NDArray[np.float64], FilterCounts]:
     """
     Crop, voxel-downsample and remove statistical outliers from finite `points` (N, 3).
@@ -154,52 +591,43 @@ def filter_points(
         the voxel step, which returns float64 centroids).
     :param voxel_size: voxel edge in metres; each occupied voxel becomes the centroid of its
         points. 0 turns it off.
-    :param outlier_neighbors: neighbours used by the statistical outlier removal; 0 turns it off.
+    :param outlier_neighbors: neighbours used by the statistical outlier removal; 0 turns it off
+        (and it is skipped when no more points than this are left).
     :param outlier_std_ratio: points whose mean distance to their neighbours is more than this
         many standard deviations above the cloud's mean are removed.
     :param crop_min: lower corner of an axis-aligned crop box (metres); None or empty: no crop.
     :param crop_max: upper corner of the crop box; given together with `crop_min`.
-    :param voxel_backend: 'numpy' (:func:`voxel_down_sample`) or 'open3d' (Open3D's
-        ``voxel_down_sample``); see the module docstring.
+    :param bounds: ``(2, 3)`` min and max corners of `points` when the decoder measured them
+        (:class:`mvbb_ros.pipeline.decode.Decoded`): the points are then taken as already
+        cropped to the crop box, and the voxel grid skips its own measuring pass.
+    :param finite: with `bounds`: how many finite points the cloud had before the crop (the
+        first of the counts); None: ``len(points)``.
     :return: the filtered points (M, 3) as float64, and the counts after each step.
-    :raises ValueError: for an unknown `voxel_backend`.
     """
-    if voxel_backend not in VOXEL_BACKENDS:
-        raise ValueError(f'voxel_backend must be one of {VOXEL_BACKENDS}, got {voxel_backend!r}')
-    pts = np.asarray(points)
-    if pts.dtype not in (np.float32, np.float64):
-        pts = pts.astype(np.float64)
-    pts = pts.reshape(-1, 3)
-    count_in = len(pts)
-    if crop_min is not None and np.size(crop_min) and crop_max is not None and np.size(crop_max):
-        low = np.asarray(crop_min, dtype=np.float64)
-        high = np.asarray(crop_max, dtype=np.float64)
-        inside = (pts[:, 0] >= low[0]) & (pts[:, 0] <= high[0])
-        inside &= (pts[:, 1] >= low[1]) & (pts[:, 1] <= high[1])
-        inside &= (pts[:, 2] >= low[2]) & (pts[:, 2] <= high[2])
-        pts = pts.compress(inside, axis=0)
+    pts = _readonly_points(points)
+    count_in = len(pts) if finite is None else int(finite)
+    if bounds is None and voxel_size <= 0.0:
+        pts = crop_points(pts, crop_min, crop_max)
     count_cropped = len(pts)
-    cloud = None
     if voxel_size > 0.0 and len(pts):
-        if voxel_backend == 'numpy':
-            pts, _ = voxel_down_sample(pts, voxel_size)
+        if bounds is None:
+            pts, members = voxel_down_sample(pts, voxel_size, crop_min=crop_min, crop_max=crop_max)
+            count_cropped = int(members.sum())
         else:
-            cloud = _open3d_cloud(pts).voxel_down_sample(voxel_size)
-            pts = np.asarray(cloud.points)
+            pts, _ = voxel_down_sample(pts, voxel_size, bounds=bounds)
     count_downsampled = len(pts)
     if outlier_neighbors > 0 and count_downsampled > outlier_neighbors:
-        if cloud is None:
-            cloud = _open3d_cloud(pts)
-        _, kept = cloud.remove_statistical_outlier(
-            nb_neighbors=int(outlier_neighbors), std_ratio=float(outlier_std_ratio)
-        )
-        pts = pts[np.asarray(kept, dtype=np.intp)]
+        kept = remove_statistical_outliers(pts, int(outlier_neighbors), float(outlier_std_ratio))
+        pts = pts[kept]
     filtered = np.ascontiguousarray(pts, dtype=np.float64)
     counts = FilterCounts(count_in, count_cropped, count_downsampled, len(filtered))
     return filtered, counts
 
 
-def _open3d_cloud(points: NDArray) -> o3d.geometry.PointCloud:
-    return o3d.geometry.PointCloud(
-        o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
-    )
+def warm_up() -> None:
+    """Run every kernel of this module once (see :mod:`mvbb_ros.kernels`)."""
+    for dtype in (np.float32, np.float64):
+        points = np.arange(12, dtype=dtype).reshape(4, 3)
+        voxel_down_sample(points, 1.0, crop_min=(0, 0, 0), crop_max=(9, 9, 9))
+        voxel_down_sample(points, 1.0, bounds=[points.min(axis=0), points.max(axis=0)])
+        crop_points(points, (0, 0, 0), (5, 5, 5))

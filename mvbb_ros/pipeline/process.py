@@ -21,7 +21,7 @@ from mvbb_ros.geometry.completion import complete_view, CompletedView
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.objects import separate_objects
-from mvbb_ros.pipeline.decode import CloudFormatError, read_points
+from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
@@ -140,17 +140,29 @@ def _empty_counts(count: int = 0) -> FilterCounts:
 MAX_EXTENT_M = 1000.0
 
 
-def implausible_extent(points: NDArray[np.floating]) -> str | None:
+def implausible_extent(
+    points: NDArray[np.floating], bounds: ArrayLike | None = None
+) -> str | None:
     """
     Return why finite `points` (N, 3) cannot be one object in metres, or None when they can.
 
     A cloud of random bytes (coordinates up to 3.4e38), a cloud in the wrong units or a whole
     map spans more than :data:`MAX_EXTENT_M` along some axis; the pipeline rejects it with
     this reason instead of failing deep inside a filter. Where the object is does not matter.
+
+    :param points: the points.
+    :param bounds: ``(2, 3)`` min and max corners of the points when known (the decoder measures
+        them, after its crop: a crop box that keeps one object out of a whole map makes it
+        plausible); None measures them here.
+    :return: the reason, or None.
     """
     if len(points) == 0:
         return None
-    extent = points.max(axis=0).astype(np.float64) - points.min(axis=0).astype(np.float64)
+    if bounds is None:
+        extent = points.max(axis=0).astype(np.float64) - points.min(axis=0).astype(np.float64)
+    else:
+        corners = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+        extent = corners[1] - corners[0]
     if extent.max() <= MAX_EXTENT_M:
         return None
     spans = ' x '.join(f'{v:.3g}' for v in extent)
@@ -164,6 +176,7 @@ def process_points(
     points: ArrayLike,
     settings: PipelineSettings | None = None,
     timings_ms: dict[str, float] | None = None,
+    decoded: Decoded | None = None,
 ) -> PipelineResult:
     """
     Filter, decompose and grasp finite `points` (N, 3) in metres.
@@ -173,6 +186,9 @@ def process_points(
     :param settings: the pipeline settings; None for the node's defaults (``PipelineSettings()``;
         ``PipelineSettings.paper()`` is the paper's algorithm).
     :param timings_ms: step timings measured before this call (decoding), kept in the result.
+    :param decoded: what the decoder measured when `points` are its ``decoded.points``, already
+        cropped to the settings' crop box (:func:`process_cloud`): their bounds and the finite
+        count, which spare the filters a pass over the points.
     :return: the result; empty with a `warning` when the points cannot be one object in
         metres (:func:`implausible_extent`) or too few points remain.
     """
@@ -180,10 +196,17 @@ def process_points(
     timings = dict(timings_ms or {})
     start = time.perf_counter()
     array = np.asarray(points)
-    reason = implausible_extent(array)
+    bounds = None if decoded is None else decoded.bounds
+    reason = implausible_extent(array, bounds)
     if reason is not None:
-        return PipelineResult(counts=_empty_counts(len(array)), timings_ms=timings, warning=reason)
-    filtered, counts = filter_points(points, **asdict(settings.filtering))
+        count = len(array) if decoded is None else decoded.finite
+        return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
+    filtered, counts = filter_points(
+        array,
+        bounds=bounds,
+        finite=None if decoded is None else decoded.finite,
+        **asdict(settings.filtering),
+    )
     timings['filter'] = (time.perf_counter() - start) * 1e3
     min_points = settings.decomposition.min_points
     if len(filtered) < min_points:
@@ -240,14 +263,16 @@ def process_points(
     return result
 
 
-def decode_cloud(cloud: Any) -> NDArray[np.floating]:
+def decode_cloud(cloud: Any, settings: PipelineSettings | None = None) -> Decoded:
     """
-    Decode a PointCloud2 (rclpy or rosbags message) to finite (N, 3) points.
+    Decode a PointCloud2 (rclpy or rosbags message) to finite (N, 3) points, cropped.
 
     float32 when the cloud's x, y, z are float32 (no float64 copy of a whole frame: the filter
-    takes float32 as it is), float64 otherwise; see :func:`mvbb_ros.pipeline.decode.read_points`.
+    takes float32 as it is), float64 otherwise; the settings' crop box is applied while
+    decoding. See :func:`mvbb_ros.pipeline.decode.decode_points`.
     """
-    return read_points(cloud)
+    filtering = (settings if settings is not None else PipelineSettings()).filtering
+    return decode_points(cloud, crop_min=filtering.crop_min, crop_max=filtering.crop_max)
 
 
 def process_cloud(cloud: Any, settings: PipelineSettings) -> PipelineResult:
@@ -258,12 +283,12 @@ def process_cloud(cloud: Any, settings: PipelineSettings) -> PipelineResult:
     """
     start = time.perf_counter()
     try:
-        points = decode_cloud(cloud)
+        decoded = decode_cloud(cloud, settings)
     except CloudFormatError as error:
         return PipelineResult(counts=_empty_counts(), warning=f'malformed cloud: {error}')
     timings = {'decode': (time.perf_counter() - start) * 1e3}
-    if len(points) == 0:
+    if decoded.finite == 0:
         return PipelineResult(
             counts=_empty_counts(), timings_ms=timings, warning='cloud has no finite points'
         )
-    return process_points(points, settings, timings)
+    return process_points(decoded.points, settings, timings, decoded)

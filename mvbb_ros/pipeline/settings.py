@@ -58,11 +58,6 @@ class _StageDefault:
 STAGE_DEFAULT: Any = _StageDefault()
 
 
-#: Voxel back-ends of the filters (the ``voxel_backend`` setting); the first is the default.
-VoxelBackend = Literal['numpy', 'open3d']
-VOXEL_BACKENDS: tuple[VoxelBackend, ...] = get_args(VoxelBackend)
-
-
 @dataclass(frozen=True)
 class FilterSettings:
     """
@@ -76,7 +71,6 @@ class FilterSettings:
     crop_min: tuple[float, ...] = ()
     crop_max: tuple[float, ...] = ()
     voxel_size: float = 0.0
-    voxel_backend: VoxelBackend = 'numpy'
     outlier_neighbors: int = 0
     outlier_std_ratio: float = 2.0
 
@@ -256,7 +250,7 @@ SPECS: tuple[SettingSpec, ...] = (
         'Random seed of the box fit (results are deterministic).',
         (0, 2**31 - 1),
     ),
-    # Filtering (voxel grid in numpy or Open3D; statistical outliers with Open3D).
+    # Filtering (compiled crop, voxel grid and statistical outliers: Open3D's results).
     SettingSpec(
         'voxel_size',
         FilterSettings,
@@ -264,14 +258,6 @@ SPECS: tuple[SettingSpec, ...] = (
         'Voxel down-sampling edge length in metres; 0 turns it off.',
         (0.0, 10.0),
         node_default=0.005,
-    ),
-    SettingSpec(
-        'voxel_backend',
-        FilterSettings,
-        str,
-        "Voxel down-sampling implementation: 'numpy' (default, the same centroids as "
-        "Open3D's, computed from the decoded float32 points) or 'open3d'.",
-        choices=VOXEL_BACKENDS,
     ),
     SettingSpec(
         'outlier_neighbors',
@@ -527,6 +513,10 @@ REPLACED_SETTINGS: dict[str, str] = {
     'reliable_input': (
         "input_reliability ('reliable_input: true' is now 'input_reliability: reliable' with "
         "'input_depth: 50'; the default 'auto' matches the publishers)"
+    ),
+    'voxel_backend': (
+        "nothing: there is one voxel grid, which computes Open3D's centroids exactly (both "
+        'former back-ends gave the same points); delete the line'
     ),
 }
 #: Parameters of every rclpy node that are not ours (and not errors in a parameter file).
