@@ -20,8 +20,9 @@ from __future__ import annotations
 import importlib
 from typing import Any, TYPE_CHECKING
 
-# First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it.
-from mvbb_ros import kernel_cache  # noqa: F401
+# First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it,
+# and compile_time clocks the compiles of the kernels that the imports below compile.
+from mvbb_ros import compile_time, kernel_cache  # noqa: F401
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.fit import minimum_bounding_box
@@ -48,8 +49,8 @@ def __getattr__(name: str) -> Any:
     """
     Import :func:`process_points` on first use.
 
-    The pipeline's filters load Open3D (seconds), and every import of a submodule runs this
-    package first: the command line's help and the geometry must not pay for it.
+    The pipeline loads its compiled kernels (from numba's cache, or compiling them), and every
+    import of a submodule runs this package first: the command line's help must not pay for it.
     """
     if name == 'process_points':
         return importlib.import_module('mvbb_ros.pipeline.process').process_points

@@ -5,24 +5,30 @@ numba compiles a kernel on its first call and caches the machine code (``cache=T
 its module, or in the user's cache directory when the package folder is read-only (a colcon
 install space). :func:`warm_up` calls every kernel module's own ``warm_up()`` on tiny inputs,
 so that the first cloud does not wait for the compiler: ``tools/bootstrap.sh`` runs it once at
-set-up (``python -m mvbb_ros.kernels``), and the node and the command line run it at start and
-say so when something had to be compiled.
+set-up (``python -m mvbb_ros.kernels``), and the node and the command line run it at start
+(:func:`warm_up_logged`) and say so in one line when something had to be compiled.
 
 A kernel module registers itself by being listed in :data:`KERNEL_MODULES` and defining
 ``warm_up() -> None``, which calls each of its kernels once.
 
 A kernel's cache is refreshed when any module it calls into changes, not only its own
 (:mod:`mvbb_ros.kernel_cache`).
+
+Kernels with explicit signatures compile (or load from the cache) when their module is
+imported, not when warmed; :mod:`mvbb_ros.compile_time` clocks every numba compile of the
+process from the package's first import on, and :class:`WarmUp` reports that time too.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import importlib
 import sys
 import time
 from types import ModuleType
 
+from mvbb_ros.compile_time import compile_seconds
 from numba.core import caching
 from numba.core.registry import CPUDispatcher
 
@@ -48,10 +54,13 @@ class WarmUp:
 
     :ivar seconds: wall-clock time of importing the modules and calling every kernel once.
     :ivar compiled: names of the kernels that had to be compiled (not found in the cache).
+    :ivar compile_seconds: time numba spent compiling in this process so far, at import (the
+        kernels with explicit signatures) and while warming.
     """
 
     seconds: float
     compiled: tuple[str, ...]
+    compile_seconds: float = 0.0
 
 
 def _dispatchers(module: ModuleType) -> list[tuple[str, CPUDispatcher]]:
@@ -75,14 +84,33 @@ def warm_up() -> WarmUp:
         compiled += [
             kernel for kernel, dispatcher in _dispatchers(module) if dispatcher.stats.cache_misses
         ]
-    return WarmUp(time.perf_counter() - start, tuple(compiled))
+    return WarmUp(time.perf_counter() - start, tuple(compiled), compile_seconds())
+
+
+def warm_up_logged(log: Callable[[str], object]) -> WarmUp:
+    """
+    Warm the kernels; when some had to be compiled, say so in one line through `log`.
+
+    The node and the command line call this before the first cloud, so that the first cloud
+    does not wait for the compiler and a user knows why the first start took longer.
+
+    :param log: where the line goes (a ROS logger's ``info``, or a print to stderr).
+    :return: what warming took.
+    """
+    report = warm_up()
+    if report.compiled:
+        log(f'compiling geometry kernels, first run only ({report.compile_seconds:.1f} s)')
+    return report
 
 
 def main() -> int:
     """Warm the cache (``python -m mvbb_ros.kernels``); print what it took."""
     report = warm_up()
-    what = f'compiled {len(report.compiled)} kernels' if report.compiled else 'cache was warm'
-    print(f'mvbb_ros kernels: {what} in {report.seconds:.1f} s')
+    if report.compiled:
+        what = f'compiled {len(report.compiled)} kernels in {report.compile_seconds:.1f} s'
+    else:
+        what = f'cache was warm ({report.seconds:.1f} s)'
+    print(f'mvbb_ros kernels: {what}')
     return 0
 
 

@@ -36,7 +36,7 @@ from mvbb_ros.pipeline.settings import defaults, format_assignment, PipelineSett
 import numpy as np
 from numpy.typing import ArrayLike
 
-if TYPE_CHECKING:  # the pipeline loads Open3D: imported when a command runs (see below)
+if TYPE_CHECKING:  # the pipeline loads numba: imported when a command runs (see below)
     from mvbb_ros.pipeline.process import PipelineResult
 
 EXIT_OK = 0
@@ -293,6 +293,13 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
     }
 
 
+def warm_kernels() -> None:
+    """Warm the compiled kernels before the first cloud; one line on stderr when compiling."""
+    from mvbb_ros.kernels import warm_up_logged
+
+    warm_up_logged(lambda line: print(line, file=sys.stderr, flush=True))
+
+
 def decompose_and_report(
     points: ArrayLike,
     settings: PipelineSettings,
@@ -306,9 +313,10 @@ def decompose_and_report(
 
     :raises ValueError: when too few points are left after filtering (the node's warning).
     """
-    # Deferred: the pipeline loads Open3D (the filters), which `mvbb --help` does not need.
+    # Deferred: the pipeline loads numba and its kernels, which `mvbb --help` does not need.
     from mvbb_ros.pipeline.process import process_points
 
+    warm_kernels()
     start = time.perf_counter()
     result = process_points(points, settings)
     seconds = time.perf_counter() - start
@@ -455,6 +463,7 @@ def _run_bag_process(args: argparse.Namespace) -> int:
         )
 
     print(f'{args.input} -> {args.output}', flush=True)
+    warm_kernels()
     try:
         summary = process_bag(
             args.input,

@@ -37,6 +37,7 @@ import traceback
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from mvbb_ros.kernels import warm_up_logged
 from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import (
@@ -195,6 +196,9 @@ class DecomposerNode(Node):
             'clouds_failed': 0,
             'clouds_reprocessed': 0,
         }
+        # Before the subscription: the first cloud must not wait for the compiler (a first run
+        # compiles for 20-40 s and says so in one line; from the cache this takes 0.2 s).
+        warm_up_logged(self.get_logger().info)
         self._input = CloudInput(
             self,
             self._on_cloud,

@@ -1,0 +1,111 @@
+"""
+numba's cache of the kernels: the one log line of a first run, and a read-only package.
+
+A colcon install space belongs to whoever built it, so numba cannot write its cache beside the
+modules; it then caches in the user's cache directory (``~/.cache/numba``). The test runs a copy
+of the package that is really read-only (a read-only bind mount in a private mount namespace
+when the tests run as root, who may write anywhere; plain file modes otherwise) in a new Python
+with its own HOME and without NUMBA_CACHE_DIR, twice: the first run compiles and says so in one
+line, the second finds everything in the user's cache.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+import re
+import shutil
+import stat
+import subprocess
+import sys
+
+from conftest import REPO_ROOT
+from mvbb_ros import kernels
+import pytest
+
+#: What the child prints: where the package came from, whether it could write there, the lines.
+CHILD = """
+import json, os
+import mvbb_ros
+from mvbb_ros.kernels import warm_up_logged
+lines = []
+report = warm_up_logged(lines.append)
+folder = os.path.dirname(mvbb_ros.__file__)
+print(json.dumps({'package': folder, 'writable': os.access(folder, os.W_OK), 'lines': lines,
+                  'compiled': len(report.compiled)}))
+"""
+
+
+def read_only_command(folder: Path) -> list[str]:
+    """Return a command prefix under which `folder` is read-only (or make it so)."""
+    if os.geteuid() != 0:
+        for path in [folder, *folder.rglob('*')]:
+            path.chmod(path.stat().st_mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+        return []
+    if shutil.which('unshare') is None:
+        pytest.skip('running as root without unshare: cannot make a read-only package')
+    if subprocess.run(['unshare', '-m', 'true'], capture_output=True, check=False).returncode:
+        pytest.skip('running as root without the right to make a mount namespace (unshare -m)')
+    mount = f'mount --bind {folder} {folder} && mount -o remount,ro,bind {folder} {folder}'
+    return ['unshare', '-m', 'sh', '-c', f'{mount} && exec "$0" "$@"']
+
+
+@pytest.mark.slow
+def test_a_read_only_package_caches_in_the_users_cache_directory(tmp_path):
+    install = tmp_path / 'install'
+    shutil.copytree(
+        REPO_ROOT / 'mvbb_ros', install / 'mvbb_ros', ignore=shutil.ignore_patterns('__pycache__')
+    )
+    home = tmp_path / 'home'
+    home.mkdir()
+    environment = {
+        key: value
+        for key, value in os.environ.items()
+        if key not in ('NUMBA_CACHE_DIR', 'XDG_CACHE_HOME', 'PYTHONPATH')
+    }
+    environment.update(HOME=str(home), PYTHONPATH=str(install), PYTHONDONTWRITEBYTECODE='1')
+    command = [*read_only_command(install), sys.executable, '-c', CHILD]
+
+    def run() -> dict:
+        result = subprocess.run(
+            command,
+            cwd=tmp_path,  # not the work tree, whose package `python -c` would find first
+            env=environment,
+            capture_output=True,
+            text=True,
+            check=False,
+            timeout=600,
+        )
+        assert result.returncode == 0, result.stderr
+        return json.loads(result.stdout.strip().splitlines()[-1])
+
+    first = run()
+    assert Path(first['package']) == install / 'mvbb_ros' and not first['writable']
+    assert first['compiled'] > 0
+    assert len(first['lines']) == 1
+    assert re.fullmatch(
+        r'compiling geometry kernels, first run only \(\d+\.\d s\)', first['lines'][0]
+    )
+    cache = home / '.cache' / 'numba'
+    index = {path.name.split('.')[0] for path in cache.rglob('*.nbi')}
+    assert {'filtering', 'outliers', 'decode', 'objects', 'completion'} <= index
+    assert list(cache.rglob('*.nbc')), 'the machine code is cached too'
+    assert not list(install.rglob('__pycache__')), 'nothing written into the package'
+
+    second = run()
+    assert second['compiled'] == 0 and second['lines'] == [], 'the second run starts warm'
+
+
+def test_every_kernel_module_is_listed_and_warms():
+    report = kernels.warm_up()
+    assert report.seconds >= 0.0 and report.compile_seconds >= 0.0
+    for name in kernels.KERNEL_MODULES:
+        assert callable(getattr(sys.modules[name], 'warm_up', None)), name
+    package = REPO_ROOT / 'mvbb_ros'
+    with_kernels = {
+        '.'.join(path.relative_to(REPO_ROOT).with_suffix('').parts)
+        for path in package.rglob('*.py')
+        if re.search(r'^@(nb\.)?njit\(.*cache=True', path.read_text(), re.MULTILINE | re.DOTALL)
+    }
+    assert with_kernels <= set(kernels.KERNEL_MODULES), 'a module with cached kernels is unlisted'
