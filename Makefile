@@ -4,7 +4,12 @@
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup demo test lint bench clean
+# The tests of the compiled kernels, which `make compat` runs on Ubuntu 24.04's numba 0.59,
+# numpy 1.26 and scipy 1.11 (requirements-compat.txt); tests needing Open3D or rclpy skip there.
+COMPAT_TESTS := test/test_decode.py test/test_filtering.py test/test_outliers.py \
+	test/test_objects.py test/test_completion.py test/test_fit.py test/test_split.py
+
+.PHONY: setup demo test compat lint bench clean
 
 setup:
 	@tools/bootstrap.sh
@@ -15,6 +20,9 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest
 
+compat:
+	COMPAT_TESTS="$(COMPAT_TESTS)" tools/compat.sh
+
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
@@ -24,4 +32,4 @@ bench: setup
 	$(BIN)/python benchmarks/mvbb.py
 
 clean:
-	rm -rf build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis out
+	rm -rf build install log .pytest_cache .ruff_cache .mypy_cache .hypothesis out .venv-compat
