@@ -70,7 +70,14 @@ import operator
 from typing import Any, NamedTuple
 
 from llvmlite import ir
-from mvbb_ros.pipeline.filtering import BOX, crop_box, inside_box
+from mvbb_ros.pipeline.filtering import (
+    BOX,
+    crop_box,
+    inside_box,
+    NO_CORNERS,
+    store_corners,
+    widened,
+)
 from numba import njit, types
 from numba.extending import intrinsic
 import numpy as np
@@ -358,16 +365,9 @@ def _coordinate(data: Any, at: Any, datatype: Any, big: Any) -> Any:
 @njit(inline='always')
 def _decode_rows(
     data: Any,
-    height: Any,
-    width: Any,
-    row_step: Any,
-    point_step: Any,
-    x_at: Any,
-    y_at: Any,
-    z_at: Any,
-    x_type: Any,
-    y_type: Any,
-    z_type: Any,
+    shape: Any,
+    offsets: Any,
+    datatypes: Any,
     big: Any,
     keep_nonfinite: Any,
     box: Any,
@@ -378,15 +378,18 @@ def _decode_rows(
     """
     Decode every point row by row and append the kept ones to `out`.
 
-    Kept: finite and inside the crop box (every point when `keep_nonfinite`). The min and max
-    corners of the kept finite points go to ``bounds[0]`` and ``bounds[1]``, for the voxel
-    grid's anchor (one pass over the points saved: they are in registers here).
+    `shape` is (height, width, row_step, point_step), `offsets` and `datatypes` those of x, y
+    and z. Kept: finite and inside the crop box (every point when `keep_nonfinite`). The min
+    and max corners of the kept finite points go to ``bounds[0]`` and ``bounds[1]``, for the
+    voxel grid's anchor (one pass over the points saved: they are in registers here).
 
     :return: (points kept, finite points).
     """
+    height, width, row_step, point_step = shape
+    x_at, y_at, z_at = offsets
+    x_type, y_type, z_type = datatypes
     count = finite = 0
-    min_x = min_y = min_z = np.inf
-    max_x = max_y = max_z = -np.inf
+    corners = NO_CORNERS
     for row in range(height):
         start = np.uint64(row) * row_step
         for column in range(width):
@@ -398,41 +401,25 @@ def _decode_rows(
                 finite += 1
                 if crop and not inside_box(x, y, z, box):
                     continue
-                min_x = min(min_x, x)
-                max_x = max(max_x, x)
-                min_y = min(min_y, y)
-                max_y = max(max_y, y)
-                min_z = min(min_z, z)
-                max_z = max(max_z, z)
+                corners = widened(corners, x, y, z)
             elif not keep_nonfinite:
                 continue
             out[count, 0] = x
             out[count, 1] = y
             out[count, 2] = z
             count += 1
-    bounds[0, 0] = min_x
-    bounds[0, 1] = min_y
-    bounds[0, 2] = min_z
-    bounds[1, 0] = max_x
-    bounds[1, 1] = max_y
-    bounds[1, 2] = max_z
+    store_corners(bounds, corners)
     return count, finite
 
 
-_BYTES = types.Array(types.uint8, 1, 'C', readonly=True)
+#: (height, width, row_step, point_step): the loop counts as int64, the byte steps unsigned.
+_SHAPE = types.Tuple((types.int64, types.int64, types.uint64, types.uint64))
 _SIGNATURES = [
     types.UniTuple(types.int64, 2)(
-        _BYTES,
-        types.int64,
-        types.int64,
-        types.uint64,
-        types.uint64,
-        types.uint64,
-        types.uint64,
-        types.uint64,
-        types.int64,
-        types.int64,
-        types.int64,
+        types.Array(types.uint8, 1, 'C', readonly=True),
+        _SHAPE,
+        types.UniTuple(types.uint64, 3),
+        types.UniTuple(types.int64, 3),
         types.boolean,
         types.boolean,
         BOX,
@@ -447,16 +434,9 @@ _SIGNATURES = [
 @njit(_SIGNATURES, cache=True)
 def _decode(
     data: Any,
-    height: Any,
-    width: Any,
-    row_step: Any,
-    point_step: Any,
-    x_at: Any,
-    y_at: Any,
-    z_at: Any,
-    x_type: Any,
-    y_type: Any,
-    z_type: Any,
+    shape: Any,
+    offsets: Any,
+    datatypes: Any,
     big: Any,
     keep_nonfinite: Any,
     box: Any,
@@ -468,23 +448,23 @@ def _decode(
     # The constants are int64/bool values, not literals: numba compiles the loop's helpers once
     # and LLVM folds the constants into the inlined copies.
     little = big and not big
+    x_type, y_type, z_type = datatypes
     same = x_type == y_type and y_type == z_type
     if not big and same and x_type == FLOAT32:
         float32 = np.int64(FLOAT32)
         return _decode_rows(
-            data, height, width, row_step, point_step, x_at, y_at, z_at,
-            float32, float32, float32, little, keep_nonfinite, box, crop, out, bounds,
+            data, shape, offsets, (float32, float32, float32), little, keep_nonfinite, box,
+            crop, out, bounds,
         )  # fmt: skip
     if not big and same and x_type == FLOAT64:
         float64 = np.int64(FLOAT64)
         return _decode_rows(
-            data, height, width, row_step, point_step, x_at, y_at, z_at,
-            float64, float64, float64, little, keep_nonfinite, box, crop, out, bounds,
+            data, shape, offsets, (float64, float64, float64), little, keep_nonfinite, box,
+            crop, out, bounds,
         )  # fmt: skip
     return _decode_rows(
-        data, height, width, row_step, point_step, x_at, y_at, z_at,
-        x_type, y_type, z_type, big, keep_nonfinite, box, crop, out, bounds,
-    )  # fmt: skip
+        data, shape, offsets, datatypes, big, keep_nonfinite, box, crop, out, bounds
+    )
 
 
 class Decoded(NamedTuple):
@@ -582,19 +562,11 @@ def decode_xyz(
             f'{row_step} and point_step {point_step} need {needed}'
         )
     out = np.empty((height * width, 3), dtype=dtype)
-    (x_at, y_at, z_at), (x_type, y_type, z_type) = offsets, datatypes
     kept, finite = _decode(
         view,
-        height,
-        width,
-        np.uint64(row_step),
-        np.uint64(point_step),
-        np.uint64(x_at),
-        np.uint64(y_at),
-        np.uint64(z_at),
-        int(x_type),
-        int(y_type),
-        int(z_type),
+        (height, width, np.uint64(row_step), np.uint64(point_step)),
+        tuple(np.uint64(offset) for offset in offsets),
+        tuple(int(datatype) for datatype in datatypes),
         bool(is_bigendian),
         not skip_nonfinite,
         box,

@@ -127,6 +127,26 @@ def crop_box(
     return tuple(float(value) for value in corners), True
 
 
+#: The corners of no point: (x0, y0, z0, x1, y1, z1) that any point widens.
+NO_CORNERS = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
+
+
+@njit
+def widened(corners: Any, x: Any, y: Any, z: Any) -> Any:
+    """Return ``corners = (x0, y0, z0, x1, y1, z1)`` grown to hold the point (x, y, z)."""
+    low_x, low_y, low_z, high_x, high_y, high_z = corners
+    return (
+        min(low_x, x), min(low_y, y), min(low_z, z), max(high_x, x), max(high_y, y), max(high_z, z)
+    )  # fmt: skip
+
+
+@njit
+def store_corners(bounds: Any, corners: Any) -> None:
+    """Write ``corners = (x0, y0, z0, x1, y1, z1)`` into the (2, 3) array `bounds`."""
+    bounds[0, 0], bounds[0, 1], bounds[0, 2] = corners[0], corners[1], corners[2]
+    bounds[1, 0], bounds[1, 1], bounds[1, 2] = corners[3], corners[4], corners[5]
+
+
 @njit(
     [
         types.int64(_points_type(dtype), BOX, types.boolean, types.float64[:, ::1])
@@ -140,8 +160,7 @@ def _crop_bounds(points: Any, box: Any, crop: Any, bounds: Any) -> Any:
 
     :return: the count, or ``-1 - i`` when point ``i`` is not finite (then nothing is valid).
     """
-    min_x = min_y = min_z = np.inf
-    max_x = max_y = max_z = -np.inf
+    corners = NO_CORNERS
     count = 0
     for i in range(points.shape[0]):
         x = np.float64(points[i, 0])
@@ -151,18 +170,8 @@ def _crop_bounds(points: Any, box: Any, crop: Any, bounds: Any) -> Any:
             return -1 - i
         if not crop or inside_box(x, y, z, box):
             count += 1
-            min_x = min(min_x, x)
-            max_x = max(max_x, x)
-            min_y = min(min_y, y)
-            max_y = max(max_y, y)
-            min_z = min(min_z, z)
-            max_z = max(max_z, z)
-    bounds[0, 0] = min_x
-    bounds[0, 1] = min_y
-    bounds[0, 2] = min_z
-    bounds[1, 0] = max_x
-    bounds[1, 1] = max_y
-    bounds[1, 2] = max_z
+            corners = widened(corners, x, y, z)
+    store_corners(bounds, corners)
     return count
 
 
