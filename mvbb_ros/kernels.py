@@ -54,8 +54,9 @@ class WarmUp:
 
     :ivar seconds: wall-clock time of importing the modules and calling every kernel once.
     :ivar compiled: names of the kernels that had to be compiled (not found in the cache).
-    :ivar compile_seconds: time numba spent compiling in this process so far, at import (the
-        kernels with explicit signatures) and while warming.
+    :ivar compile_seconds: time numba spent compiling since the previous warm-up of this
+        process, or since its start for the first (the imports compile the kernels with
+        explicit signatures).
     """
 
     seconds: float
@@ -74,17 +75,33 @@ def _dispatchers(module: ModuleType) -> list[tuple[str, CPUDispatcher]]:
     ]
 
 
+#: What the previous :func:`warm_up` of this process counted: compiles per kernel, and numba's
+#: compile time (the first call counts from the process's start, its imports included).
+_COUNTED: dict[str, int] = {}
+_COUNTED_SECONDS = [0.0]
+
+
 def warm_up() -> WarmUp:
-    """Import every kernel module and run its kernels once; report what had to be compiled."""
+    """
+    Import every kernel module and run its kernels once; report what had to be compiled.
+
+    The first call of a process reports every compile since the package was imported (kernels
+    with signatures compile at import); a later call only what it compiled itself (a long-lived
+    process, such as a test session, compiles other argument types in between: not a start).
+    """
     start = time.perf_counter()
     compiled = []
     for name in KERNEL_MODULES:
         module = importlib.import_module(name)
         module.warm_up()
-        compiled += [
-            kernel for kernel, dispatcher in _dispatchers(module) if dispatcher.stats.cache_misses
-        ]
-    return WarmUp(time.perf_counter() - start, tuple(compiled), compile_seconds())
+        for kernel, dispatcher in _dispatchers(module):
+            misses = sum(dispatcher.stats.cache_misses.values())
+            if misses > _COUNTED.get(kernel, 0):
+                compiled.append(kernel)
+            _COUNTED[kernel] = misses
+    seconds = compile_seconds() - _COUNTED_SECONDS[0]
+    _COUNTED_SECONDS[0] = compile_seconds()
+    return WarmUp(time.perf_counter() - start, tuple(compiled), seconds)
 
 
 def warm_up_logged(log: Callable[[str], object]) -> WarmUp:
