@@ -236,3 +236,29 @@ def test_cut_to_dict_is_plain_json():
     assert data['family'] == 5
     assert isinstance(data['point'], list) and len(data['normal']) == 3
     assert data['lower_count'] + data['upper_count'] == len(cube_and_plate())
+
+
+@pytest.mark.parametrize('measure', ['area', 'volume'])
+@settings(max_examples=40, deadline=None)
+@given(local=points_strategy, cells=st.integers(2, 20), floor=st.floats(0.0, 5.0))
+def test_thickness_floor_drops_exactly_the_thin_cuts(measure, local, cells, floor):
+    """With a floor, a cut stays a candidate iff both parts are that thick along its axis."""
+    plain = split.score_cuts(local, cells=cells, measure=measure)
+    floored = split.score_cuts(local, cells=cells, measure=measure, min_thickness=floor)
+    index = split.grid_cell_index(local, cells)
+    for row, (_, axis) in enumerate(plain.families):
+        for position in range(cells - 1):
+            upper = index[:, axis] >= position + 1
+            parts = [local[~upper, axis], local[upper, axis]]
+            thick = all(len(part) and np.ptp(part) >= floor for part in parts)
+            expected = plain.theta[row, position] if thick or floor == 0.0 else np.inf
+            assert floored.theta[row, position] == expected
+
+
+def test_a_subnormal_range_still_gets_its_cells():
+    """A range of 1e-313 overflows cells / range: the offset is divided by the range."""
+    local = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 2.2250738585e-313], [0.5, 0.2, 1e-313]])
+    index = split.grid_cell_index(local, 4)
+    np.testing.assert_array_equal(index[:, 2], [0, 3, 1])
+    scores = split.score_cuts(local, cells=4)
+    assert np.all(scores.lower_count >= 0) and np.isfinite(scores.theta).any()

@@ -1,5 +1,5 @@
 """
-Split measure and best cut of one box (paper Sec. III-C, eq. 1); plain numpy, no ROS import.
+Split measure and best cut of one box (paper Sec. III-C, eq. 1); numpy and numba, no ROS import.
 
 A box P with axes a, b, c (rotation columns 0, 1, 2) is cut only by planes parallel to its faces.
 The points are expressed in P's frame and each axis is divided into a grid of ``grid_cells``
@@ -22,10 +22,10 @@ frame (the product of each part's three extents) over the volume of the whole, o
 axis, at the same cost.
 
 The grid only discretises the cut positions; the rectangle and box bounds are the parts' exact
-point bounds. Per-cell minima and maxima (a radix sort of the cell keys and one reduction, O(n))
-followed by prefix and suffix minima and maxima over the cells (O(cells)) give every cut of every
-family at once. theta is a
-ratio, so it does not depend on the units of the points.
+point bounds. Per-cell minima and maxima (one pass over the points, O(n)) followed by prefix and
+suffix minima and maxima over the cells (O(cells)) give every cut of every family at once, in one
+compiled call (:func:`score_kernel`). theta is a ratio, so it does not depend on the units of the
+points.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -158,17 +159,167 @@ def _check_measure(measure: str) -> str:
     return measure
 
 
-def _bounds(pts: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Return the per-axis minimum and maximum of (n, 3) points."""
-    # Reducing the contiguous (3, n) copy is over ten times faster than pts.min(axis=0).
-    columns = np.ascontiguousarray(pts.T)
-    return columns.min(axis=1), columns.max(axis=1)
+@nb.njit(cache=True)
+def cell_index_kernel(points: np.ndarray, cells: int) -> tuple:
+    """
+    Return the grid cell of each point along each axis, and the points' bounds.
+
+    Each axis is divided into `cells` equal cells spanning the points' own range along it; a
+    point's cell is its offset from the low end times ``cells / range``, truncated, the top end
+    falling in the last cell; an axis along which all points coincide puts every point in cell
+    0. (A range so small that ``cells / range`` overflows divides the offset by the range
+    instead.)
+
+    :param points: (n, 3) C-contiguous points, n >= 1.
+    :param cells: cells per axis, >= 1.
+    :return: the cells (n, 3) int64, the lower bounds (3,) and the upper bounds (3,).
+    """
+    count = points.shape[0]
+    low = np.empty(3)
+    high = np.empty(3)
+    for k in range(3):
+        low[k] = points[0, k]
+        high[k] = points[0, k]
+    for i in range(1, count):
+        for k in range(3):
+            value = points[i, k]
+            if value < low[k]:
+                low[k] = value
+            if value > high[k]:
+                high[k] = value
+    scale = np.zeros(3)
+    width = np.empty(3)
+    for k in range(3):
+        width[k] = high[k] - low[k]
+        if width[k] > 0.0:
+            scale[k] = cells / width[k]
+    last = float(cells - 1)
+    index = np.empty((count, 3), dtype=np.int64)
+    for i in range(count):
+        for k in range(3):
+            offset = points[i, k] - low[k]
+            if scale[k] < np.inf:
+                position = offset * scale[k]
+            else:
+                position = offset / width[k] * cells
+            index[i, k] = int(min(position, last))
+    return index, low, high
 
 
-def _cell_index(pts: FloatArray, low: FloatArray, width: FloatArray, cells: int) -> IndexArray:
-    scale = np.divide(cells, width, out=np.zeros(3), where=width > 0.0)
-    # The scaled offsets are >= 0, so truncation is the floor; the top point goes in the last cell.
-    return np.minimum((pts - low) * scale, cells - 1).astype(np.intp)
+@nb.njit
+def _part_ratio(parts: float, whole: float, valid: bool) -> float:
+    """Return theta of one cut: the parts' size over the whole's, +inf when not a candidate."""
+    if not whole > 0.0 or not valid:
+        return np.inf
+    return parts / whole
+
+
+@nb.njit(cache=True)
+def score_kernel(points: np.ndarray, cells: int, volume: bool, min_thickness: float) -> tuple:
+    """
+    Compute theta of every grid cut of points given in their box's frame (see :func:`score_cuts`).
+
+    Per cut axis, the per-cell bounds of every coordinate (one pass), then prefix and suffix
+    bounds over the cells give every cut's two parts: O(n + cells).
+
+    :param points: (n, 3) C-contiguous points in the box frame, n >= 1.
+    :param cells: cells per axis, >= 2.
+    :param volume: the ``'volume'`` measure (three families) instead of ``'area'`` (six).
+    :param min_thickness: cuts leaving a part thinner than this along the cut axis are no
+        candidates (0: every cut is).
+    :return: theta (families, cells - 1), the cells (n, 3), the points below each cut (3,
+        cells - 1) per cut axis, the largest coordinate below each cut along its axis (3,
+        cells - 1) and the smallest above it (3, cells - 1).
+    """
+    count = points.shape[0]
+    index, low, high = cell_index_kernel(points, cells)
+    # cell_min[axis, coordinate, cell]: bounds of the points in each cell along the cut axis.
+    cell_min = np.full((3, 3, cells), np.inf)
+    cell_max = np.full((3, 3, cells), -np.inf)
+    counts = np.zeros((3, cells), dtype=np.int64)
+    for i in range(count):
+        for axis in range(3):
+            cell = index[i, axis]
+            counts[axis, cell] += 1
+            for k in range(3):
+                value = points[i, k]
+                if value < cell_min[axis, k, cell]:
+                    cell_min[axis, k, cell] = value
+                if value > cell_max[axis, k, cell]:
+                    cell_max[axis, k, cell] = value
+    cuts = cells - 1
+    # The part below cut j holds cells <= j, the part above cells > j.
+    lower_min = np.empty((3, 3, cuts))
+    lower_max = np.empty((3, 3, cuts))
+    upper_min = np.empty((3, 3, cuts))
+    upper_max = np.empty((3, 3, cuts))
+    lower_count = np.empty((3, cuts), dtype=np.int64)
+    for axis in range(3):
+        for k in range(3):
+            running_min = np.inf
+            running_max = -np.inf
+            for j in range(cuts):
+                running_min = min(running_min, cell_min[axis, k, j])
+                running_max = max(running_max, cell_max[axis, k, j])
+                lower_min[axis, k, j] = running_min
+                lower_max[axis, k, j] = running_max
+            running_min = np.inf
+            running_max = -np.inf
+            for j in range(cuts - 1, -1, -1):
+                running_min = min(running_min, cell_min[axis, k, j + 1])
+                running_max = max(running_max, cell_max[axis, k, j + 1])
+                upper_min[axis, k, j] = running_min
+                upper_max[axis, k, j] = running_max
+        below = 0
+        for j in range(cuts):
+            below += counts[axis, j]
+            lower_count[axis, j] = below
+    valid = np.empty((3, cuts), dtype=np.bool_)
+    lower_extent = np.zeros((3, 3, cuts))
+    upper_extent = np.zeros((3, 3, cuts))
+    for axis in range(3):
+        for j in range(cuts):
+            ok = 0 < lower_count[axis, j] < count
+            if ok and min_thickness > 0.0:
+                ok = (
+                    lower_max[axis, axis, j] - lower_min[axis, axis, j] >= min_thickness
+                    and upper_max[axis, axis, j] - upper_min[axis, axis, j] >= min_thickness
+                )
+            valid[axis, j] = ok
+            if ok:
+                for k in range(3):
+                    lower_extent[axis, k, j] = lower_max[axis, k, j] - lower_min[axis, k, j]
+                    upper_extent[axis, k, j] = upper_max[axis, k, j] - upper_min[axis, k, j]
+    whole = np.empty(3)
+    for k in range(3):
+        whole[k] = high[k] - low[k]
+    if volume:
+        theta = np.empty((3, cuts))
+        size = whole[0] * whole[1] * whole[2]
+        for axis in range(3):
+            for j in range(cuts):
+                lower = lower_extent[axis, 0, j] * lower_extent[axis, 1, j]
+                lower = lower * lower_extent[axis, 2, j]
+                upper = upper_extent[axis, 0, j] * upper_extent[axis, 1, j]
+                upper = upper * upper_extent[axis, 2, j]
+                theta[axis, j] = _part_ratio(lower + upper, size, valid[axis, j])
+    else:
+        theta = np.empty((len(AREA_FAMILIES), cuts))
+        for row in range(len(AREA_FAMILIES)):
+            projection_axis, axis = AREA_FAMILIES[row]
+            other = 3 - projection_axis - axis
+            size = whole[axis] * whole[other]
+            for j in range(cuts):
+                lower = lower_extent[axis, axis, j] * lower_extent[axis, other, j]
+                upper = upper_extent[axis, axis, j] * upper_extent[axis, other, j]
+                theta[row, j] = _part_ratio(lower + upper, size, valid[axis, j])
+    below_max = np.empty((3, cuts))
+    above_min = np.empty((3, cuts))
+    for axis in range(3):
+        for j in range(cuts):
+            below_max[axis, j] = lower_max[axis, axis, j]
+            above_min[axis, j] = upper_min[axis, axis, j]
+    return theta, index, lower_count, below_max, above_min
 
 
 def grid_cell_index(local: ArrayLike, cells: int) -> IndexArray:
@@ -176,11 +327,14 @@ def grid_cell_index(local: ArrayLike, cells: int) -> IndexArray:
     Return the grid cell (0 .. cells - 1) of each point along each axis, (n, 3).
 
     Each axis is divided into `cells` equal cells spanning the points' own range along it; an
-    axis along which all points coincide puts every point in cell 0.
+    axis along which all points coincide puts every point in cell 0 (see
+    :func:`cell_index_kernel`).
     """
-    pts = np.asarray(local, dtype=np.float64).reshape(-1, 3)
-    low, high = _bounds(pts)
-    return _cell_index(pts, low, high - low, _check_cells(cells))
+    pts = np.ascontiguousarray(np.asarray(local, dtype=np.float64).reshape(-1, 3))
+    if len(pts) == 0:
+        return np.zeros((0, 3), dtype=np.intp)
+    index, _, _ = cell_index_kernel(pts, _check_cells(cells))
+    return index
 
 
 def score_cuts(
@@ -204,83 +358,24 @@ def score_cuts(
     """
     cells = _check_cells(cells)
     measure = _check_measure(measure)
-    pts = np.asarray(local, dtype=np.float64).reshape(-1, 3)
+    pts = np.ascontiguousarray(np.asarray(local, dtype=np.float64).reshape(-1, 3))
     if len(pts) == 0:
         raise ValueError('score_cuts needs at least one point')
-    low, high = _bounds(pts)
-    whole_extent = high - low
-    cell_index = _cell_index(pts, low, whole_extent, cells)
-    count = len(pts)
-
-    # Per-cell bounds of every coordinate, for each cut axis k: group the points by cell with a
-    # stable sort of the small integer cell keys (a radix sort, O(n)), then reduce each group.
-    cell_min = np.full((3, cells, 3), np.inf)
-    cell_max = np.full((3, cells, 3), -np.inf)
-    counts = np.empty((3, cells), dtype=np.intp)
-    key_type = np.int16 if cells <= np.iinfo(np.int16).max else np.intp
-    for axis in range(3):
-        keys = cell_index[:, axis]
-        grouped = np.take(pts, np.argsort(keys.astype(key_type), kind='stable'), axis=0)
-        counts[axis] = np.bincount(keys, minlength=cells)
-        occupied = np.flatnonzero(counts[axis])
-        starts = (np.cumsum(counts[axis]) - counts[axis])[occupied]
-        cell_min[axis, occupied] = np.minimum.reduceat(grouped, starts, axis=0)
-        cell_max[axis, occupied] = np.maximum.reduceat(grouped, starts, axis=0)
-    cell_min = cell_min.transpose(0, 2, 1)  # (cut axis, coordinate, cell)
-    cell_max = cell_max.transpose(0, 2, 1)
-
-    # Part below cut i holds cells < i (prefix), the part above cells >= i (suffix).
-    lower_min = np.minimum.accumulate(cell_min, axis=2)[:, :, :-1]
-    lower_max = np.maximum.accumulate(cell_max, axis=2)[:, :, :-1]
-    upper_min = np.minimum.accumulate(cell_min[:, :, ::-1], axis=2)[:, :, ::-1][:, :, 1:]
-    upper_max = np.maximum.accumulate(cell_max[:, :, ::-1], axis=2)[:, :, ::-1][:, :, 1:]
-    lower_count = np.cumsum(counts, axis=1)[:, :-1]
-    valid = (lower_count > 0) & (lower_count < count)
-    if min_thickness > 0.0:
-        axes = np.arange(3)
-        with np.errstate(invalid='ignore'):
-            valid &= lower_max[axes, axes] - lower_min[axes, axes] >= min_thickness
-            valid &= upper_max[axes, axes] - upper_min[axes, axes] >= min_thickness
-    with np.errstate(invalid='ignore'):
-        lower_extent = np.where(valid[:, None, :], lower_max - lower_min, 0.0)
-        upper_extent = np.where(valid[:, None, :], upper_max - upper_min, 0.0)
-
-    families: list[tuple[int | None, int]] = []
-    rows = []
-    if measure == 'area':
-        for projection_axis, cut_axis in AREA_FAMILIES:
-            other = 3 - projection_axis - cut_axis
-            whole = whole_extent[cut_axis] * whole_extent[other]
-            parts = (
-                lower_extent[cut_axis, cut_axis] * lower_extent[cut_axis, other]
-                + upper_extent[cut_axis, cut_axis] * upper_extent[cut_axis, other]
-            )
-            rows.append(_ratio(parts, whole, valid[cut_axis]))
-            families.append((projection_axis, cut_axis))
-    else:
-        whole = float(np.prod(whole_extent))
-        for cut_axis in range(3):
-            lower = np.prod(lower_extent[cut_axis], axis=0)
-            parts = lower + np.prod(upper_extent[cut_axis], axis=0)
-            rows.append(_ratio(parts, whole, valid[cut_axis]))
-            families.append((None, cut_axis))
-
-    axes = np.arange(3)
+    theta, cell_index, lower_count, lower_max, upper_min = score_kernel(
+        pts, cells, measure == 'volume', float(min_thickness)
+    )
+    families: tuple[tuple[int | None, int], ...] = (
+        tuple((None, axis) for axis in range(3)) if measure == 'volume' else AREA_FAMILIES
+    )
     return CutScores(
-        theta=np.stack(rows),
-        families=tuple(families),
+        theta=theta,
+        families=families,
         cell_index=cell_index,
         lower_count=lower_count,
-        lower_max=lower_max[axes, axes],
-        upper_min=upper_min[axes, axes],
+        lower_max=lower_max,
+        upper_min=upper_min,
         cells=cells,
     )
-
-
-def _ratio(parts: FloatArray, whole: float, valid: NDArray[np.bool_]) -> FloatArray:
-    if not whole > 0.0:
-        return np.full(parts.shape, np.inf)
-    return np.where(valid, parts / whole, np.inf)
 
 
 def _make_cut(scores: CutScores, row: int, position: int, box: Box, count: int) -> Cut:
@@ -382,3 +477,10 @@ def best_cut(
     )
     cuts = candidate_cuts(scores, box, limit=1)
     return cuts[0] if cuts else None
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once on a tiny cloud (see :mod:`mvbb_ros.kernels`)."""
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.2], [0.2, 1.0, 0.4], [0.9, 0.1, 1.0]])
+    for measure in SPLIT_MEASURES:
+        score_cuts(points, cells=4, measure=measure, min_thickness=0.1)
