@@ -1,5 +1,5 @@
 """
-Fit-and-split MVBB decomposition (paper Sec. III-B to III-D); plain numpy, no ROS import.
+Fit-and-split MVBB decomposition (paper Sec. III-B to III-D); no ROS import.
 
 :func:`decompose` fits the minimum-volume bounding box (MVBB) of a point cloud, then repeatedly
 cuts a box in two along its best face-parallel cut (:mod:`mvbb_ros.geometry.split`), fits an MVBB
@@ -25,7 +25,7 @@ from typing import Any, get_args, Literal
 from mvbb_ros.arrays import IndexArray
 from mvbb_ros.geometry import split as splitting
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.fit import fit_points, minimum_bounding_box
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -114,7 +114,10 @@ class DecompositionNode:
     :ivar tested_cut: the best cut found and tested for this node (``cut`` when it was split,
         the refused one when it was not); None when no cut was tested.
     :ivar theta: split measure theta of ``tested_cut`` (dimensionless), or None.
-    :ivar gain: volume gain Theta* (eq. 2) of ``tested_cut`` (dimensionless), or None.
+    :ivar gain: volume gain Theta* (eq. 2) of ``tested_cut`` (dimensionless), or None. For a
+        split refused before its parts were fitted (with the volume of the other leaves, no
+        child volumes could have brought Theta* below t), the lower bound that refused it:
+        Theta* with children of no volume.
     :ivar depth: 0 for the root, the parent's depth + 1 otherwise.
     :ivar dropped: True when the node has fewer than ``min_points`` points and was removed as
         noise; its points are in :attr:`Decomposition.dropped_point_indices`.
@@ -299,14 +302,21 @@ class _Draft:
 
 @dataclass
 class _Split:
-    """A candidate split with its two fitted child boxes."""
+    """
+    A candidate split with its two fitted child boxes.
+
+    ``boxes`` is None when the split was refused before its parts were fitted (no child volumes
+    could have passed it); ``volume`` is then 0, a lower bound.
+    """
 
     cut: splitting.Cut
     parts: tuple[IndexArray, IndexArray]
-    boxes: tuple[Box, Box]
+    boxes: tuple[Box, Box] | None
 
     @property
     def volume(self) -> float:
+        if self.boxes is None:
+            return 0.0
         return self.boxes[0].volume + self.boxes[1].volume
 
 
@@ -359,9 +369,14 @@ def _validated_points(points: ArrayLike) -> NDArray[np.float64]:
 
 
 def _best_split(
-    points: NDArray[np.float64], draft: _Draft, settings: DecompositionSettings
+    points: NDArray[np.float64], draft: _Draft, settings: DecompositionSettings, fit_parts: bool
 ) -> _Split | None:
-    """Find the split of a node: the paper's theta*, or the best of k real fits (rescoring)."""
+    """
+    Find the split of a node: the paper's theta*, or the best of k real fits (rescoring).
+
+    :param fit_parts: fit the parts' boxes; False returns the best cut by theta unfitted (for a
+        split that no child volumes could pass).
+    """
     local = draft.box.to_local(np.take(points, draft.point_indices, axis=0))
     scores = splitting.score_cuts(
         local,
@@ -369,19 +384,41 @@ def _best_split(
         measure=settings.split_measure,
         min_thickness=settings.min_thickness,
     )
-    cuts = splitting.candidate_cuts(scores, draft.box, limit=max(1, settings.rescore_cuts))
+    limit = max(1, settings.rescore_cuts) if fit_parts else 1
     best: _Split | None = None
-    for cut in cuts:
+    for cut in splitting.candidate_cuts(scores, draft.box, limit=limit):
         upper = splitting.cut_mask(scores, cut)
         parts = (draft.point_indices[~upper], draft.point_indices[upper])
+        if not fit_parts:
+            return _Split(cut=cut, parts=parts, boxes=None)
         boxes = (
-            minimum_bounding_box(np.take(points, parts[0], axis=0), seed=settings.seed),
-            minimum_bounding_box(np.take(points, parts[1], axis=0), seed=settings.seed),
+            fit_points(np.take(points, parts[0], axis=0), seed=settings.seed),
+            fit_points(np.take(points, parts[1], axis=0), seed=settings.seed),
         )
         split = _Split(cut=cut, parts=parts, boxes=boxes)
         if best is None or split.volume < best.volume:
             best = split
     return best
+
+
+def _others(index: int, leaf_volumes: dict[int, float]) -> float:
+    """Return V(A minus P): the summed volume of the current leaves other than `index`."""
+    return math.fsum(volume for i, volume in leaf_volumes.items() if i != index)
+
+
+def _may_pass(draft: _Draft, index: int, leaf_volumes: dict[int, float], threshold: float) -> bool:
+    """
+    Tell whether some child volumes could bring Theta* (eq. 2) of the node below `threshold`.
+
+    Theta* is smallest when both children have no volume: others / (V(P) + others), computed as
+    :func:`_record_gain` computes it (rounding is monotone, so the real Theta* is never below
+    it). When that is not below t, the split is refused whatever the fits would give: the
+    largest box first, a small box is refused once V(P) <= (1 - t) / t of the others' volume.
+    """
+    others = _others(index, leaf_volumes)
+    denominator = draft.box.volume + others
+    lowest = (0.0 + others) / denominator if denominator > 0.0 else 1.0
+    return lowest < threshold
 
 
 def _reduction(draft: _Draft, split: _Split | None) -> float:
@@ -393,7 +430,7 @@ def _record_gain(
     draft: _Draft, split: _Split, index: int, leaf_volumes: dict[int, float]
 ) -> float:
     """Compute Theta* (eq. 2) of `split` against the current leaves and record it on `draft`."""
-    others = math.fsum(volume for i, volume in leaf_volumes.items() if i != index)
+    others = _others(index, leaf_volumes)
     denominator = draft.box.volume + others
     gain = (split.volume + others) / denominator if denominator > 0.0 else 1.0
     draft.tested_cut = split.cut
@@ -450,6 +487,12 @@ def decompose(
     refused (``stop_reason='noise'``): a kept box is never dropped by its own split. A cloud
     of fewer than `min_points` points gives a dropped root, no leaves and every point dropped.
     So the leaves' point sets partition the kept points, and kept plus dropped are all points.
+
+    Fits skipped: with the volume of the other leaves, some splits could not pass eq. 2 even
+    with children of no volume (others / (V(P) + others) >= t: at t = 0.94 a box of less than
+    6.4 % of the others' volume). Such a split is refused as eq. 2 would refuse it, its best cut
+    recorded, but its parts are not fitted (its ``gain`` is that lower bound). The result is
+    the same as with every fit made (the ``'gain'`` order fits every split it ranks).
 
     :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
         and volumes come out in those units. Every criterion is scale-free: theta and Theta*
@@ -517,7 +560,7 @@ def decompose(
         for i in indices:
             if settings.order == 'gain':
                 # Best first needs every leaf's best split up front (each is fitted once anyway).
-                splits[i] = _best_split(pts, drafts[i], settings)
+                splits[i] = _best_split(pts, drafts[i], settings, fit_parts=True)
                 priority = _reduction(drafts[i], splits[i])
             else:
                 priority = drafts[i].box.volume
@@ -528,7 +571,11 @@ def decompose(
     while waiting:
         index = waiting.pop()
         draft = drafts[index]
-        split = splits.pop(index) if index in splits else _best_split(pts, draft, settings)
+        if index in splits:
+            split = splits.pop(index)
+        else:
+            may_pass = _may_pass(draft, index, leaf_volumes, settings.gain_threshold)
+            split = _best_split(pts, draft, settings, fit_parts=may_pass)
         if split is None:
             draft.stop_reason = 'no_cut'
             continue
@@ -550,6 +597,7 @@ def decompose(
         if not any(kept):
             draft.stop_reason = 'noise'
             continue
+        assert split.boxes is not None, 'a split that passes eq. 2 has fitted parts'
         if any(
             keep and float(np.min(box.extents)) < settings.min_thickness
             for keep, box in zip(kept, split.boxes, strict=True)

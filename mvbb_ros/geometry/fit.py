@@ -46,6 +46,7 @@ it calls into changes (:mod:`mvbb_ros.kernel_cache`).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 from mvbb_ros.arrays import FloatArray
 from mvbb_ros.geometry import hull as hull_module
@@ -180,6 +181,7 @@ def _planar_frame(local: np.ndarray, first: int, second: int) -> np.ndarray:
 @nb.njit(cache=True)
 def fit_kernel(
     points: np.ndarray,
+    guide: np.ndarray,
     seed: int,
     sample_size: int,
     grid_size: int,
@@ -196,6 +198,8 @@ def fit_kernel(
     Fit the minimum-volume oriented box of finite points (see the module notes).
 
     :param points: (N, 3) C-contiguous finite points, N >= 1.
+    :param guide: (K, 3) unit directions tried as box axes besides the hull's own candidates
+        (K may be 0), e.g. the axes of a box that held these points.
     :return: centre (3,), rotation (3, 3) whose columns are the box axes (right-handed) and full
         extents (3,), in the units and frame of the points.
     """
@@ -251,6 +255,12 @@ def fit_kernel(
     covariance[2, 0] = covariance[0, 2]
     covariance[2, 1] = covariance[1, 2]
     pca = _symmetric_eigen(covariance)
+    # The guide directions in the PCA frame (the search's coordinates).
+    local_guide = np.empty((guide.shape[0], 3))
+    for j in range(guide.shape[0]):
+        for k in range(3):
+            local_guide[j, k] = guide[j, 0] * pca[0, k] + guide[j, 1] * pca[1, k]
+            local_guide[j, k] += guide[j, 2] * pca[2, k]
     # Every point in the PCA frame, and its box there.
     local = np.empty((count, 3))
     local_low = np.full(3, np.inf)
@@ -325,6 +335,7 @@ def fit_kernel(
                 np.zeros(0),
                 np.zeros((0, 2), dtype=np.int64),
                 np.zeros((0, 2), dtype=np.int64),
+                local_guide,
                 seed,
                 candidates,
                 pair_edges,
@@ -351,6 +362,7 @@ def fit_kernel(
                 areas,
                 edges,
                 edge_facets,
+                local_guide,
                 seed,
                 candidates,
                 pair_edges,
@@ -518,7 +530,55 @@ def fit_box(
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
-    knobs = (
+    knobs = _knobs(
+        seed=seed,
+        sample_size=sample_size,
+        grid_size=grid_size,
+        candidates=candidates,
+        starts=starts,
+        max_rounds=max_rounds,
+        exhaustive=exhaustive,
+        pair_edges=pair_edges,
+        coreset_cells=coreset_cells,
+        coreset_min=coreset_min,
+    )
+    return _run(_as_points(points), knobs)
+
+
+#: No guide directions for the search.
+_NO_GUIDE = np.zeros((0, 3))
+
+
+class _Knobs(NamedTuple):
+    """The knobs of :func:`fit_box`, checked, in the kernel's order."""
+
+    seed: int
+    sample_size: int
+    grid_size: int
+    candidates: int
+    starts: int
+    max_rounds: int
+    exhaustive: int
+    pair_edges: int
+    coreset_cells: int
+    coreset_min: int
+
+
+def _knobs(
+    *,
+    seed: int,
+    sample_size: int,
+    grid_size: int,
+    candidates: int,
+    starts: int,
+    max_rounds: int,
+    exhaustive: int,
+    pair_edges: int,
+    coreset_cells: int,
+    coreset_min: int,
+) -> _Knobs:
+    """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
+    return _Knobs(
         _check_knob('seed', seed, 0) & (2**63 - 1),
         _check_knob('sample_size', sample_size, 1),
         _check_knob('grid_size', grid_size, 0),
@@ -530,7 +590,46 @@ def fit_box(
         _check_knob('coreset_cells', coreset_cells, 0),
         _check_knob('coreset_min', coreset_min, 0),
     )
-    return fit_kernel(_as_points(points), *knobs, hull_module.HULL_TOLERANCE)
+
+
+def _run(
+    points: FloatArray, knobs: _Knobs, *, guide: FloatArray = _NO_GUIDE
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Run :func:`fit_kernel` on checked points and knobs (see there for the guide)."""
+    return fit_kernel(
+        points,
+        guide,
+        knobs.seed,
+        knobs.sample_size,
+        knobs.grid_size,
+        knobs.candidates,
+        knobs.starts,
+        knobs.max_rounds,
+        knobs.exhaustive,
+        knobs.pair_edges,
+        knobs.coreset_cells,
+        knobs.coreset_min,
+        hull_module.HULL_TOLERANCE,
+    )
+
+
+#: The default knobs (from :func:`fit_box`'s signature).
+_DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
+
+
+def fit_points(points: FloatArray, *, seed: int = 0) -> Box:
+    """
+    Return the minimum-volume box of points already checked, with the default knobs.
+
+    :func:`minimum_bounding_box` without its checks and conversions, for callers whose points
+    are known to be valid (the decomposition's parts): the same box for the same points.
+
+    :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
+    :param seed: an integer >= 0 (not checked).
+    :return: the box.
+    """
+    knobs = _DEFAULT_KNOBS._replace(seed=seed & (2**63 - 1))
+    return Box.trusted(*_run(points, knobs))
 
 
 def minimum_bounding_box(
