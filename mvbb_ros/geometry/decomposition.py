@@ -377,7 +377,8 @@ def _best_split(
     :param fit_parts: fit the parts' boxes; False returns the best cut by theta unfitted (for a
         split that no child volumes could pass).
     """
-    local = draft.box.to_local(np.take(points, draft.point_indices, axis=0))
+    box = draft.box
+    local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
     scores = splitting.score_cuts(
         local,
         cells=settings.grid_cells,
@@ -406,7 +407,7 @@ def _others(index: int, leaf_volumes: dict[int, float]) -> float:
     return math.fsum(volume for i, volume in leaf_volumes.items() if i != index)
 
 
-def _may_pass(draft: _Draft, index: int, leaf_volumes: dict[int, float], threshold: float) -> bool:
+def _may_pass(draft: _Draft, others: float, threshold: float) -> bool:
     """
     Tell whether some child volumes could bring Theta* (eq. 2) of the node below `threshold`.
 
@@ -415,7 +416,6 @@ def _may_pass(draft: _Draft, index: int, leaf_volumes: dict[int, float], thresho
     it). When that is not below t, the split is refused whatever the fits would give: the
     largest box first, a small box is refused once V(P) <= (1 - t) / t of the others' volume.
     """
-    others = _others(index, leaf_volumes)
     denominator = draft.box.volume + others
     lowest = (0.0 + others) / denominator if denominator > 0.0 else 1.0
     return lowest < threshold
@@ -426,11 +426,8 @@ def _reduction(draft: _Draft, split: _Split | None) -> float:
     return -math.inf if split is None else draft.box.volume - split.volume
 
 
-def _record_gain(
-    draft: _Draft, split: _Split, index: int, leaf_volumes: dict[int, float]
-) -> float:
-    """Compute Theta* (eq. 2) of `split` against the current leaves and record it on `draft`."""
-    others = _others(index, leaf_volumes)
+def _record_gain(draft: _Draft, split: _Split, others: float) -> float:
+    """Compute Theta* (eq. 2) of `split` (``others``: V(A minus P)) and record it on `draft`."""
     denominator = draft.box.volume + others
     gain = (split.volume + others) / denominator if denominator > 0.0 else 1.0
     draft.tested_cut = split.cut
@@ -571,15 +568,16 @@ def decompose(
     while waiting:
         index = waiting.pop()
         draft = drafts[index]
+        others = _others(index, leaf_volumes)
         if index in splits:
             split = splits.pop(index)
         else:
-            may_pass = _may_pass(draft, index, leaf_volumes, settings.gain_threshold)
+            may_pass = _may_pass(draft, others, settings.gain_threshold)
             split = _best_split(pts, draft, settings, fit_parts=may_pass)
         if split is None:
             draft.stop_reason = 'no_cut'
             continue
-        gain = _record_gain(draft, split, index, leaf_volumes)
+        gain = _record_gain(draft, split, others)
         kept = [len(part) >= settings.min_points for part in split.parts]
         if not gain < settings.gain_threshold:
             draft.stop_reason = 'gain'
@@ -591,7 +589,7 @@ def decompose(
                     if other_split is None:
                         drafts[other].stop_reason = 'no_cut'
                     else:
-                        _record_gain(drafts[other], other_split, other, leaf_volumes)
+                        _record_gain(drafts[other], other_split, _others(other, leaf_volumes))
                         drafts[other].stop_reason = 'gain'
             continue
         if not any(kept):

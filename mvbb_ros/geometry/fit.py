@@ -181,7 +181,6 @@ def _planar_frame(local: np.ndarray, first: int, second: int) -> np.ndarray:
 @nb.njit(cache=True)
 def fit_kernel(
     points: np.ndarray,
-    guide: np.ndarray,
     seed: int,
     sample_size: int,
     grid_size: int,
@@ -198,8 +197,6 @@ def fit_kernel(
     Fit the minimum-volume oriented box of finite points (see the module notes).
 
     :param points: (N, 3) C-contiguous finite points, N >= 1.
-    :param guide: (K, 3) unit directions tried as box axes besides the hull's own candidates
-        (K may be 0), e.g. the axes of a box that held these points.
     :return: centre (3,), rotation (3, 3) whose columns are the box axes (right-handed) and full
         extents (3,), in the units and frame of the points.
     """
@@ -255,12 +252,6 @@ def fit_kernel(
     covariance[2, 0] = covariance[0, 2]
     covariance[2, 1] = covariance[1, 2]
     pca = _symmetric_eigen(covariance)
-    # The guide directions in the PCA frame (the search's coordinates).
-    local_guide = np.empty((guide.shape[0], 3))
-    for j in range(guide.shape[0]):
-        for k in range(3):
-            local_guide[j, k] = guide[j, 0] * pca[0, k] + guide[j, 1] * pca[1, k]
-            local_guide[j, k] += guide[j, 2] * pca[2, k]
     # Every point in the PCA frame, and its box there.
     local = np.empty((count, 3))
     local_low = np.full(3, np.inf)
@@ -335,7 +326,6 @@ def fit_kernel(
                 np.zeros(0),
                 np.zeros((0, 2), dtype=np.int64),
                 np.zeros((0, 2), dtype=np.int64),
-                local_guide,
                 seed,
                 candidates,
                 pair_edges,
@@ -362,7 +352,6 @@ def fit_kernel(
                 areas,
                 edges,
                 edge_facets,
-                local_guide,
                 seed,
                 candidates,
                 pair_edges,
@@ -545,10 +534,6 @@ def fit_box(
     return _run(_as_points(points), knobs)
 
 
-#: No guide directions for the search.
-_NO_GUIDE = np.zeros((0, 3))
-
-
 class _Knobs(NamedTuple):
     """The knobs of :func:`fit_box`, checked, in the kernel's order."""
 
@@ -592,13 +577,10 @@ def _knobs(
     )
 
 
-def _run(
-    points: FloatArray, knobs: _Knobs, *, guide: FloatArray = _NO_GUIDE
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Run :func:`fit_kernel` on checked points and knobs (see there for the guide)."""
+def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Run :func:`fit_kernel` on checked points and knobs."""
     return fit_kernel(
         points,
-        guide,
         knobs.seed,
         knobs.sample_size,
         knobs.grid_size,

@@ -422,7 +422,6 @@ def candidate_axes_kernel(
     normals: np.ndarray,
     areas: np.ndarray,
     edges: np.ndarray,
-    guide: np.ndarray,
     seed: int,
     candidates: int,
     pair_edges: int,
@@ -430,10 +429,9 @@ def candidate_axes_kernel(
     exhaustive: int,
 ) -> np.ndarray:
     """
-    Return the axes whose best box is computed: PCA axes, guide axes, facet and edge-pair normals.
+    Return the axes whose best box is computed: PCA axes, facet normals, edge-pair normals.
 
-    The coordinates are those of the PCA frame, so its axes are the coordinate axes. The guide
-    axes (unit, (K, 3), e.g. a parent box's axes) come next, each distinct axis once. Hulls with
+    The coordinates are those of the PCA frame, so its axes are the coordinate axes. Hulls with
     at most `exhaustive` facets give every distinct facet normal; larger ones the `candidates`
     of least volume bound (:func:`_volume_bounds`). Edge-pair normals of the `pair_edges`
     longest edges are ranked the same way, and half as many kept.
@@ -448,13 +446,12 @@ def candidate_axes_kernel(
         shadow = _binned_area_vectors(normals, areas)
     facet_count = normals.shape[0] if normals.shape[0] <= exhaustive else candidates
     pairs = _edge_pair_axes(vertices, edges, pair_edges)
-    out = np.empty((3 + guide.shape[0] + facet_count + candidates // 2, 3))
+    out = np.empty((3 + facet_count + candidates // 2, 3))
     size = 0
     for k in range(3):
         for j in range(3):
             out[size, j] = 1.0 if j == k else 0.0
         size += 1
-    size = _take_distinct(guide, np.arange(guide.shape[0]), guide.shape[0], out, size)
     if normals.shape[0] <= exhaustive:
         order = np.arange(normals.shape[0])
     else:
@@ -592,7 +589,6 @@ def search_kernel(
     areas: np.ndarray,
     edges: np.ndarray,
     edge_facets: np.ndarray,
-    guide: np.ndarray,
     seed: int,
     candidates: int,
     pair_edges: int,
@@ -605,21 +601,11 @@ def search_kernel(
     """
     Search the frame of the minimum-volume box of a full-dimensional hull.
 
-    :param guide: (K, 3) unit axes tried as candidates besides the hull's own (K may be 0).
     :return: the volume (of the hull vertices) and the frame (3, 3), columns the box axes.
     """
     work = new_work(vertices.shape[0], normals.shape[0])
     axes = candidate_axes_kernel(
-        vertices,
-        normals,
-        areas,
-        edges,
-        guide,
-        seed,
-        candidates,
-        pair_edges,
-        sample_size,
-        exhaustive,
+        vertices, normals, areas, edges, seed, candidates, pair_edges, sample_size, exhaustive
     )
     count = axes.shape[0]
     volumes = np.empty(count)
@@ -690,7 +676,6 @@ def warm_up() -> None:
         found.areas,
         found.edges,
         found.edge_facets,
-        np.eye(3),
         0,
         8,
         4,

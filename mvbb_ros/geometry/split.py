@@ -206,6 +206,29 @@ def cell_index_kernel(points: np.ndarray, cells: int) -> tuple:
     return index, low, high
 
 
+@nb.njit(cache=True)
+def frame_points_kernel(
+    points: np.ndarray, indices: np.ndarray, center: np.ndarray, rotation: np.ndarray
+) -> np.ndarray:
+    """
+    Return ``(points[indices] - center) @ rotation``: some points in a box's frame, (n, 3).
+
+    :param points: (N, 3) C-contiguous points.
+    :param indices: (n,) indices of the points to take.
+    :param center: (3,) the box's centre.
+    :param rotation: (3, 3) the box's rotation (columns are its axes).
+    """
+    out = np.empty((indices.shape[0], 3))
+    for i in range(indices.shape[0]):
+        j = indices[i]
+        x = points[j, 0] - center[0]
+        y = points[j, 1] - center[1]
+        z = points[j, 2] - center[2]
+        for k in range(3):
+            out[i, k] = x * rotation[0, k] + y * rotation[1, k] + z * rotation[2, k]
+    return out
+
+
 @nb.njit
 def _part_ratio(parts: float, whole: float, valid: bool) -> float:
     """Return theta of one cut: the parts' size over the whole's, +inf when not a candidate."""
