@@ -131,7 +131,10 @@ class Box:
     @property
     def volume(self) -> float:
         """Volume (product of the extents), in cubed units of the points."""
-        return float(np.prod(self.extents))
+        # As np.prod multiplies, left to right, without its call overhead (a decomposition asks
+        # for volumes hundreds of times).
+        a, b, c = self.extents.tolist()
+        return a * b * c
 
     @property
     def half_extents(self) -> FloatArray:
