@@ -10,6 +10,7 @@ MVBB_SHARED_DATA)::
     .venv/bin/python benchmarks/decompose.py --sweep grid_cells
     .venv/bin/python benchmarks/decompose.py --sweep min_points
     .venv/bin/python benchmarks/decompose.py --sweep order
+    .venv/bin/python benchmarks/decompose.py --parts          # part search against the full one
 
 The model table gives, per model and gain threshold t, our box count next to the paper's
 (Huebner et al. 2008, Table I), the total leaf volume over the root volume and the median time
@@ -35,6 +36,11 @@ Targets (issue 17), checked at the end, exit status 1 when one is missed:
 Units: the GraspIt! mug is in millimetres, the bunny and the scans in metres, Homer is
 unitless. Nothing here is metric: theta and Theta* are ratios, the grid is relative to each box
 and ``min_points`` is a count; the volume ratio is dimensionless.
+
+``--parts`` compares the decomposition's part fits (:func:`mvbb_ros.geometry.fit.fit_part`, the
+lighter :data:`~mvbb_ros.geometry.fit.PART_SEARCH`) with the full default search on every
+scan and model cloud at t = 0.90/0.94/0.98: the volume of each part fit over the full search's
+box of the same points, and the whole decompositions' box counts and leaf volumes.
 
 Sweeps (how the defaults were chosen; see the report in the module docstrings):
 
@@ -170,8 +176,8 @@ def time_breakdown() -> None:
     print('\n## Where the time goes (default, one run each)\n')
     print('| model | t | box fits | time in fits | rest (cuts, tree) | total |')
     print('|---|---|---|---|---|---|')
-    # The root is fitted by minimum_bounding_box, the parts by fit_points (no re-checks).
-    names = ('minimum_bounding_box', 'fit_points')
+    # The root is fitted by minimum_bounding_box, the parts by fit_part (lighter search).
+    names = ('minimum_bounding_box', 'fit_part')
     originals = {name: getattr(decomposition, name) for name in names}
     spent = {'calls': 0, 'seconds': 0.0}
 
@@ -393,6 +399,53 @@ def sweep_order() -> None:
         print('| ' + ' | '.join(row) + ' |', flush=True)
 
 
+def compare_part_search() -> None:
+    """Part fits with PART_SEARCH against the full default search: boxes, counts, volumes."""
+    print('\n## Part search (fit_part) against the full search (minimum_bounding_box defaults)\n')
+    lighter = decomposition.fit_part
+    ratios: list[float] = []
+
+    def full_recording(points: np.ndarray, *, seed: int = 0) -> object:
+        box = fit_module.minimum_bounding_box(points, seed=seed)
+        if box.volume > 0.0:
+            ratios.append(lighter(points, seed=seed).volume / box.volume)
+        return box
+
+    clouds = [
+        path
+        for folder in ('scans', 'models')
+        for path in sorted((SHARED_DATA / folder).glob('*.npy'))
+    ]
+    print('| t | decompositions | box counts changed | leaf volume part/full (mean, min, max) |')
+    print('|---|---|---|---|')
+    for threshold in THRESHOLDS:
+        changed, volumes = [], []
+        for path in clouds:
+            points = np.load(path)
+            decomposition.fit_part = full_recording
+            try:
+                full = decompose(points, gain_threshold=threshold)
+            finally:
+                decomposition.fit_part = lighter
+            part = decompose(points, gain_threshold=threshold)
+            volumes.append(part.leaf_volume / full.leaf_volume)
+            if len(part.leaves) != len(full.leaves):
+                changed.append(f'{path.stem} {len(full.leaves)} -> {len(part.leaves)}')
+        print(
+            f'| {threshold:.2f} | {len(clouds)} | {len(changed)} | {np.mean(volumes):.4f}, '
+            f'{min(volumes):.3f}, {max(volumes):.3f} |',
+            flush=True,
+        )
+        for line in changed:
+            print(f'  - {line}')
+    values = np.array(ratios)
+    print(
+        f'\n{len(values)} part fits (of the full-search decompositions), part/full volume: '
+        f'median {np.median(values):.5f}, mean {values.mean():.5f}, 99th percentile '
+        f'{np.quantile(values, 0.99):.4f}, worst {values.max():.4f}, best {values.min():.4f}'
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument('--repeats', type=int, default=5, help='runs per timing (median)')
@@ -410,6 +463,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument('--no-targets', action='store_true', help="skip issue 17's timing targets")
     parser.add_argument(
+        '--parts', action='store_true', help='compare the part search with the full search only'
+    )
+    parser.add_argument(
         '--sweep',
         choices=['grid_cells', 'min_points', 'order'],
         help='run a design sweep instead of the tables',
@@ -425,6 +481,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         {'grid_cells': sweep_grid_cells, 'min_points': sweep_min_points, 'order': sweep_order}[
             args.sweep
         ]()
+        return 0
+    if args.parts:
+        compare_part_search()
         return 0
     failures = []
     if not args.no_models:

@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 import mvbb_ros
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import ORDERS, STOP_REASONS
-from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.fit import fit_part
 from mvbb_ros.geometry.split import cut_mask, score_cuts
 import numpy as np
 import pytest
@@ -250,7 +250,7 @@ def test_best_first_leaves_no_split_that_passes_at_the_end():
         own = points[node.point_indices]
         scores = score_cuts(node.box.to_local(own), cells=result.settings.grid_cells)
         upper = cut_mask(scores, node.tested_cut)
-        children = sum(minimum_bounding_box(own[side]).volume for side in (upper, ~upper))
+        children = sum(fit_part(own[side]).volume for side in (upper, ~upper))
         others = final_volume - node.box.volume
         assert node.gain == pytest.approx((children + others) / final_volume, rel=1e-9)
         assert node.gain >= 0.98

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from mvbb_ros.geometry import fit, hull, search
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import fit_box, minimum_bounding_box
+from mvbb_ros.geometry.fit import fit_box, fit_part, minimum_bounding_box, PART_SEARCH
 from mvbb_ros.geometry.rectangle import min_area_rectangle
 import numpy as np
 import pytest
@@ -139,6 +139,16 @@ def test_the_box_is_read_only_and_the_plain_arrays_agree():
     assert box.volume == pytest.approx(0.3 * 0.2 * 0.1, rel=1e-9)
     for mine, plain in zip(_fields(box), fit_box(points, seed=1), strict=True):
         np.testing.assert_array_equal(mine, plain)
+
+
+def test_a_part_fit_is_the_fit_with_the_part_search():
+    """fit_part skips the checks only: the same box as minimum_bounding_box with PART_SEARCH."""
+    points = np.ascontiguousarray(_cuboid_cloud(2))
+    part = fit_part(points, seed=3)
+    for mine, plain in zip(_fields(part), fit_box(points, seed=3, **PART_SEARCH), strict=True):
+        np.testing.assert_array_equal(mine, plain)
+    assert not part.extents.flags.writeable
+    _assert_valid(part, points)
 
 
 # Degenerate and extreme clouds --------------------------------------------------------------

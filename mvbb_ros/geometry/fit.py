@@ -597,20 +597,26 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
+#: The knobs of a decomposition's part fits: half the candidate axes and starts, no grid rounds.
+#: Measured with ``benchmarks/decompose.py --parts`` against the default search on the 3,198
+#: part fits of the shared scans and models at t = 0.90/0.94/0.98: volume median 1.0000 x,
+#: mean 1.0004 x, 99th percentile 1.009 x, worst 1.044 x; decompositions about 15 % faster.
+PART_SEARCH: dict[str, int] = {'candidates': 16, 'starts': 4, 'grid_size': 0}
+_PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 
 
-def fit_points(points: FloatArray, *, seed: int = 0) -> Box:
+def fit_part(points: FloatArray, *, seed: int = 0) -> Box:
     """
-    Return the minimum-volume box of points already checked, with the default knobs.
+    Return the minimum-volume box of a decomposition's part: :data:`PART_SEARCH`, no checks.
 
-    :func:`minimum_bounding_box` without its checks and conversions, for callers whose points
-    are known to be valid (the decomposition's parts): the same box for the same points.
+    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` and without its checks
+    and conversions, for points known to be valid (the parts the decomposition cuts).
 
     :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
     :param seed: an integer >= 0 (not checked).
     :return: the box.
     """
-    knobs = _DEFAULT_KNOBS._replace(seed=seed & (2**63 - 1))
+    knobs = _PART_KNOBS._replace(seed=seed & (2**63 - 1))
     return Box.trusted(*_run(points, knobs))
 
 
