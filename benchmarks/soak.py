@@ -12,10 +12,11 @@ matched by stamp) and the node's resident memory over time.
 
 The clouds are published reliable with keep last 1, as camera drivers and bag players do
 (``--reliability best_effort`` to compare: the middleware then loses most 3.6 MB clouds before
-the node sees them, 96-98 % here). The node runs on one core (``--node-core``, default 1; this process on the other), as on a
-robot that gives the decomposer one core. The last lines compare the figures with issue 17's
-targets: at least 95 % of the clouds answered, p99 latency under 50 ms, resident memory growing
-less than 5 % after the first sample (warm-up), exit code 0 on SIGINT.
+the node sees them, 96-98 % here). The node runs on one core (``--node-core``, default 1; this
+process on the other), as on a robot that gives the decomposer one core. The last lines compare
+the figures with issue 17's targets: at least 95 % of the clouds answered, p99 latency under
+50 ms, resident memory growing less than 5 % after the first sample (warm-up), exit code 0 on
+SIGINT.
 """
 
 from __future__ import annotations
