@@ -43,6 +43,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.geometry.search',
     'mvbb_ros.geometry.fit',
     'mvbb_ros.geometry.split',
+    'mvbb_ros.geometry.raster',
     'mvbb_ros.geometry.completion',
     'mvbb_ros.geometry.objects',
 )

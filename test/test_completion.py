@@ -7,13 +7,9 @@ import math
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.completion import (
-    behind_others,
-    complete_view,
-    MAX_SAMPLES,
-    view_raster,
-)
+from mvbb_ros.geometry.completion import complete_view, MAX_SAMPLES
 from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.raster import behind_others, view_raster
 from mvbb_ros.pipeline.filtering import filter_points
 import numpy as np
 import pytest

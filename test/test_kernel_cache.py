@@ -62,7 +62,8 @@ def test_the_stamp_covers_the_kernel_modules_a_module_imports():
 
     assert {'fit', 'search', 'hull', 'rectangle', 'box'} <= covered('fit')
     assert 'fit' not in covered('hull')
-    assert {'completion', 'fit', 'hull'} <= covered('objects')
+    assert {'raster', 'cells'} <= covered('objects')
+    assert {'raster', 'fit', 'hull'} <= covered('completion')
     fit_file = (PACKAGE / 'geometry' / 'fit.py').resolve()
     assert kernel_cache.dependency_digest(fit_file) != kernel_cache.dependency_digest(
         (PACKAGE / 'geometry' / 'hull.py').resolve()

@@ -34,6 +34,7 @@ from typing import get_args, Literal
 from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.raster import behind_others, MAX_RASTER_SIDE, view_raster, ViewRaster
 from mvbb_ros.geometry.rectangle import hull_2d_kernel
 import numba as nb
 import numpy as np
@@ -44,10 +45,6 @@ from scipy import ndimage
 Completion = Literal['none', 'mirror', 'extrude']
 COMPLETIONS: tuple[Completion, ...] = get_args(Completion)
 
-#: Raster cells per point spacing: a cell holds one or two points, so the outline has no holes.
-CELLS_PER_SPACING = 1.5
-#: Most raster cells along a side (coarser cells for objects very large for their spacing).
-MAX_RASTER_SIDE = 256
 #: The estimated part keeps one point per cube this many point spacings wide ...
 SOLID_CELLS = 1.0
 #: ... or wider, so that there are at most this many cubes along a side.
@@ -83,241 +80,6 @@ COMPACT_SLACK = 1.1
 MAX_SELF_HIDDEN = 0.18
 #: A jump in range of more than this many point spacings along a ray separates two surfaces.
 SURFACE_GAP = 3.0
-#: A depth sensor returns nothing where its ray meets a surface more obliquely than this angle
-#: from the surface's normal (degrees; 80 for the evaluation's camera, about a Kinect's). Such a
-#: surface leaves a band outside the observed outline where the object may still be: a point
-#: at range r whose lateral distance to an outline cell of range r0 is at most
-#: tan(90 - GRAZING_DEG) * (r - r0) may lie on a surface the sensor saw too obliquely.
-GRAZING_DEG = 80.0
-#: tan(90 - GRAZING_DEG): the lateral reach of an unseen oblique surface per metre of depth.
-GRAZING_SLOPE = math.tan(math.radians(90.0 - GRAZING_DEG))
-#: Most raster cells that band reaches past the outline (the raster's margin grows to it).
-MAX_GRAZING_CELLS = 16
-
-
-@dataclass(frozen=True, eq=False)
-class ViewRaster:
-    """
-    The object as the sensor saw it: an angular image around the viewing direction.
-
-    :ivar viewpoint: (3,) sensor position, metres.
-    :ivar frame: (3, 3) rows: image x, image y and the viewing direction (unit vectors).
-    :ivar origin: (2,) tangent-plane coordinates (x / z, y / z) of cell (0, 0)'s corner.
-    :ivar cell: cell size in tangent-plane units (about radians).
-    :ivar mask: (rows, cols) cells the object covers (small holes closed, one cell of margin).
-    :ivar near: (rows, cols) smallest observed range (metres) in and next to each cell, +inf
-        where nothing was observed.
-    :ivar oblique: (rows, cols) outside the outline, the least range (metres) from which a
-        point in the cell may lie on a surface the sensor saw too obliquely to return it
-        (:data:`GRAZING_DEG`, :func:`_oblique_ranges`); +inf in the outline and beyond reach.
-    """
-
-    viewpoint: FloatArray
-    frame: FloatArray
-    origin: FloatArray
-    cell: float
-    mask: BoolArray
-    near: FloatArray
-    oblique: FloatArray
-
-    def locate(self, points: FloatArray) -> tuple[IndexArray, FloatArray]:
-        """
-        Return each point's cell (row, column; -1, -1 outside the raster or behind the sensor).
-
-        :param points: (N, 3) points.
-        :return: the cells (N, 2) and the points' ranges from the viewpoint (N,), metres.
-        """
-        rows, cols = self.mask.shape
-        return _cells(
-            np.ascontiguousarray(points, dtype=np.float64),
-            self.viewpoint,
-            self.frame,
-            self.origin,
-            self.cell,
-            rows,
-            cols,
-        )
-
-    def hidden(self, points: FloatArray, tolerance: float) -> BoolArray:
-        """
-        Tell which points the sensor could not have seen.
-
-        A point is hidden when it falls in the object's outline and lies more than `tolerance`
-        (metres) behind the nearest observed range there, or when it falls outside the outline
-        but within reach of a surface too oblique to the sensor's rays to be seen
-        (:data:`GRAZING_DEG`).
-        """
-        return _hidden(
-            np.ascontiguousarray(points, dtype=np.float64),
-            self.viewpoint,
-            self.frame,
-            self.origin,
-            self.cell,
-            self.mask,
-            self.near,
-            self.oblique,
-            tolerance,
-        )
-
-
-@nb.njit('float64[:, :](boolean[:, :], float64[:, :], float64, float64, int64)', cache=True)
-def _oblique_ranges(
-    mask: BoolArray, near: FloatArray, cell: float, slope: float, radius: int
-) -> FloatArray:
-    """
-    Return, per cell outside the outline, the least range of a point there that the view allows.
-
-    A surface the sensor sees more obliquely than :data:`GRAZING_DEG` returns nothing, so the
-    object may go on past its observed outline along one. A point at range r, d cells from an
-    outline cell of nearest range r0, may lie on such a surface from there when its distance
-    across the rays, d * cell * r, is at most ``slope * (r - r0)``: when
-    r >= r0 / (1 - d * cell / slope). The least such r over the outline cells within `radius`
-    cells; +inf in the outline and out of reach.
-    """
-    rows, cols = mask.shape
-    out = np.full((rows, cols), np.inf)
-    for i in range(rows):
-        for j in range(cols):
-            if not mask[i, j] or not near[i, j] < np.inf:
-                continue
-            edge = False
-            for a, b in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
-                if a < 0 or b < 0 or a >= rows or b >= cols or not mask[a, b]:
-                    edge = True
-            if not edge:
-                continue
-            for a in range(max(i - radius, 0), min(i + radius + 1, rows)):
-                for b in range(max(j - radius, 0), min(j + radius + 1, cols)):
-                    if mask[a, b]:
-                        continue
-                    share = math.sqrt(float((a - i) ** 2 + (b - j) ** 2)) * cell / slope
-                    if share < 1.0:
-                        out[a, b] = min(out[a, b], near[i, j] / (1.0 - share))
-    return out
-
-
-@nb.njit(
-    'boolean[:](float64[:, :], float64[:], float64[:, :], float64[:], float64, boolean[:, :], '
-    'float64[:, :], float64[:, :], float64)',
-    cache=True,
-)
-def _hidden(
-    points: FloatArray,
-    viewpoint: FloatArray,
-    frame: FloatArray,
-    origin: FloatArray,
-    cell: float,
-    mask: BoolArray,
-    near: FloatArray,
-    oblique: FloatArray,
-    tolerance: float,
-) -> BoolArray:
-    """Kernel of :meth:`ViewRaster.hidden`."""
-    rows, cols = mask.shape
-    out = np.zeros(points.shape[0], dtype=np.bool_)
-    for i in range(points.shape[0]):
-        dx = points[i, 0] - viewpoint[0]
-        dy = points[i, 1] - viewpoint[1]
-        dz = points[i, 2] - viewpoint[2]
-        depth = frame[2, 0] * dx + frame[2, 1] * dy + frame[2, 2] * dz
-        if depth <= 0.0:
-            continue
-        u = (frame[0, 0] * dx + frame[0, 1] * dy + frame[0, 2] * dz) / depth
-        v = (frame[1, 0] * dx + frame[1, 1] * dy + frame[1, 2] * dz) / depth
-        row = math.floor((u - origin[0]) / cell)
-        col = math.floor((v - origin[1]) / cell)
-        if 0 <= row < rows and 0 <= col < cols:
-            distance = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if mask[row, col]:
-                out[i] = distance > near[row, col] + tolerance
-            else:
-                out[i] = distance >= oblique[row, col]
-    return out
-
-
-@nb.njit(
-    'Tuple((int64[:, :], float64[:]))(float64[:, :], float64[:], float64[:, :], float64[:], '
-    'float64, int64, int64)',
-    cache=True,
-)
-def _cells(
-    points: FloatArray,
-    viewpoint: FloatArray,
-    frame: FloatArray,
-    origin: FloatArray,
-    cell: float,
-    rows: int,
-    cols: int,
-) -> tuple[IndexArray, FloatArray]:
-    """Kernel of :meth:`ViewRaster.locate`."""
-    count = points.shape[0]
-    index = np.full((count, 2), -1, dtype=np.int64)
-    ranges = np.empty(count)
-    for i in range(count):
-        dx = points[i, 0] - viewpoint[0]
-        dy = points[i, 1] - viewpoint[1]
-        dz = points[i, 2] - viewpoint[2]
-        ranges[i] = math.sqrt(dx * dx + dy * dy + dz * dz)
-        depth = frame[2, 0] * dx + frame[2, 1] * dy + frame[2, 2] * dz
-        if depth <= 0.0:
-            continue
-        u = (frame[0, 0] * dx + frame[0, 1] * dy + frame[0, 2] * dz) / depth
-        v = (frame[1, 0] * dx + frame[1, 1] * dy + frame[1, 2] * dz) / depth
-        row = math.floor((u - origin[0]) / cell)
-        col = math.floor((v - origin[1]) / cell)
-        if 0 <= row < rows and 0 <= col < cols:
-            index[i, 0] = row
-            index[i, 1] = col
-    return index, ranges
-
-
-def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> ViewRaster:
-    """
-    Rasterise `points` as seen from `viewpoint`, in cells 1.5 point spacings wide.
-
-    :param points: (N, 3) observed points, N >= 1, metres, all in front of the viewpoint.
-    :param viewpoint: (3,) sensor position in the points' frame.
-    :param spacing: distance between neighbouring points (the voxel size), metres, > 0.
-    :raises ValueError: when the points surround the viewpoint (no viewing direction).
-    """
-    pts = np.ascontiguousarray(points, dtype=np.float64)
-    eye = np.asarray(viewpoint, dtype=np.float64)
-    axis = pts.mean(axis=0) - eye
-    length = float(np.linalg.norm(axis))
-    if not length > 0.0:
-        raise ValueError('the points surround the viewpoint: there is no viewing direction')
-    axis /= length
-    side = np.cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
-    side /= np.linalg.norm(side)
-    frame = np.stack([side, np.cross(axis, side), axis])
-    relative = (pts - eye) @ frame.T
-    ahead = relative[:, 2] > 0.0
-    if not np.any(ahead):
-        raise ValueError('no point lies in front of the viewpoint')
-    tangent = relative[ahead, :2] / relative[ahead, 2:3]
-    distance = float(np.median(np.linalg.norm(pts - eye, axis=1)))
-    widest = float(np.max(np.ptp(tangent, axis=0)))
-    cell = max(CELLS_PER_SPACING * spacing / distance, widest / MAX_RASTER_SIDE)
-    # Room around the outline for the band a surface seen too obliquely may hide: its reach
-    # across the rays for a depth of twice the object's size (a mirror image lies at most that
-    # far behind the nearest point).
-    size = float(np.max(np.ptp(pts, axis=0)))
-    nearest = float(np.min(np.linalg.norm(pts - eye, axis=1)))
-    reach = GRAZING_SLOPE * 2.0 * size / (max(nearest, 1e-9) * cell)
-    margin = max(4, min(MAX_GRAZING_CELLS, math.ceil(reach)))
-    origin = tangent.min(axis=0) - margin * cell
-    shape = np.ceil((tangent.max(axis=0) - origin) / cell).astype(np.int64) + margin + 1
-    rows, cols = int(shape[0]), int(shape[1])
-    index, ranges = _cells(pts, eye, frame, origin, cell, rows, cols)
-    seen = index[:, 0] >= 0
-    covered = np.zeros((rows, cols), dtype=bool)
-    covered[index[seen, 0], index[seen, 1]] = True
-    mask = ndimage.binary_dilation(ndimage.binary_closing(covered, iterations=2))
-    near = np.full((rows, cols), np.inf)
-    np.minimum.at(near, (index[seen, 0], index[seen, 1]), ranges[seen])
-    near = ndimage.minimum_filter(near, size=3)
-    oblique = _oblique_ranges(mask, near, cell, GRAZING_SLOPE, margin)
-    return ViewRaster(eye, frame, origin, cell, mask, near, oblique)
 
 
 @nb.njit(
@@ -461,28 +223,6 @@ def _candidate_normals(
             if axis @ preferred >= AXIS_COS:
                 normals.append(axis)
     return np.array(normals), preferred, fan
-
-
-def behind_others(points: FloatArray, raster: ViewRaster, gap: float) -> BoolArray:
-    """
-    Tell which points lie behind another surface along their ray.
-
-    A point is behind another surface when it lies more than `gap` (metres) behind the previous
-    point of its raster cell, or behind such a point. A single view has one surface along each
-    ray (a slanted one spreads its points in range, but without gaps); a model, merged views or
-    a wrong viewpoint put several surfaces on one ray.
-    """
-    cells, ranges = raster.locate(points)
-    flat = cells[:, 0] * raster.mask.shape[1] + cells[:, 1]
-    order = np.lexsort((ranges, flat))
-    flat, ranges = flat[order], ranges[order]
-    same_cell = flat[1:] == flat[:-1]
-    jumps = np.concatenate([[0], np.cumsum(same_cell & (np.diff(ranges) > gap))])
-    starts = np.concatenate([[0], np.flatnonzero(~same_cell) + 1])
-    first_of_cell = np.repeat(starts, np.diff(np.concatenate([starts, [len(flat)]])))
-    behind = np.zeros(len(points), dtype=bool)
-    behind[order] = (jumps - jumps[first_of_cell] > 0) & (flat >= 0)
-    return behind
 
 
 def find_mirror_plane(

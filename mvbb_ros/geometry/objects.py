@@ -15,7 +15,7 @@ import itertools
 
 from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.geometry.cells import cell_grid, cell_key, cell_start
-from mvbb_ros.geometry.completion import view_raster
+from mvbb_ros.geometry.raster import view_raster
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
