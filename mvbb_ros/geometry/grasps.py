@@ -72,6 +72,10 @@ class Grasp:
     :ivar score: strategy score in [0, 1] of the box (higher is better; list order is the rank).
     :ivar object_index: which object of the cloud the grasp is on (0 when the cloud is one
         object; the pipeline numbers the objects it separates).
+    :ivar depth: how far the gripper moves along ``approach`` from ``position`` before it
+        closes: ``position + depth * approach`` is where the fingertips stop (the paper's
+        hypotheses: ``standoff``, the face centre; refined grasps: past the first contact,
+        ``docs/grasp_rules.md``).
     """
 
     position: FloatArray
@@ -84,6 +88,7 @@ class Grasp:
     roll_deg: int
     score: float
     object_index: int = 0
+    depth: float = DEFAULT_STANDOFF
 
     @property
     def face_name(self) -> str:
@@ -109,6 +114,7 @@ class Grasp:
             'roll_deg': self.roll_deg,
             'score': self.score,
             'object_index': self.object_index,
+            'depth': self.depth,
         }
 
     def __repr__(self) -> str:
@@ -131,8 +137,8 @@ class GraspStats:
     :ivar hypotheses: hypotheses before any filter (24 per box).
     :ivar after_occlusion: hypotheses left after removing occluded faces.
     :ivar after_width: ... and also those wider than ``gripper_max_width``.
-    :ivar after_support: ... and also those from below or too close to the support (the final
-        count, ``len(grasps)``).
+    :ivar after_support: ... and also those from below, too close to the support or (with
+        ``far_side`` off) from the far side of their object (the final count, ``len(grasps)``).
     """
 
     boxes: int
@@ -177,6 +183,7 @@ class GraspSettings:
     contact_tolerance: float | None = None
     contact_fraction: float = DEFAULT_CONTACT_FRACTION
     max_grasps: int = 0
+    far_side: bool = True
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
@@ -353,6 +360,17 @@ def _object_centroid(boxes: Sequence[Box], points: FloatArray | None) -> FloatAr
     return centers.mean(axis=0)
 
 
+def _object_centres(boxes: Sequence[Box], points: FloatArray | None, view: _View) -> FloatArray:
+    """Return per box the centre of its object (its points' mean, else its boxes' centroid)."""
+    objects = np.array([view.object_index(i) for i in range(len(boxes))])
+    centres = np.empty((len(boxes), 3))
+    for number in np.unique(objects):
+        mine = np.flatnonzero(objects == number)
+        own = points if len(np.unique(objects)) == 1 else None
+        centres[mine] = _object_centroid([boxes[i] for i in mine], own)
+    return centres
+
+
 def _strategy_keys(
     strategy: str, boxes: Sequence[Box], points: FloatArray | None, sensor_origin: ArrayLike
 ) -> FloatArray:
@@ -367,6 +385,48 @@ def _strategy_keys(
         return np.linalg.norm(centers - _object_centroid(boxes, points), axis=1)
     origin = np.asarray(sensor_origin, dtype=np.float64).reshape(3)
     return -np.linalg.norm(centers - origin, axis=1)
+
+
+def strategy_scores(
+    strategy: Strategy,
+    boxes: Sequence[Box],
+    sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
+    points: FloatArray | None = None,
+) -> FloatArray:
+    """
+    Return each box's strategy score in [0, 1] (1: the strategy's best box; the rules above).
+
+    :param strategy: ``'largest'``, ``'smallest'``, ``'outermost'`` or ``'nearest'``.
+    :param boxes: the leaf boxes, at least one.
+    :param sensor_origin: the sensor position for ``'nearest'``.
+    :param points: the object's points for the centroid of ``'outermost'`` (None: the boxes').
+    :return: (B,) scores, min-max normalised over the boxes (all 1 when they tie).
+    """
+    return _normalised(_tie_rounded(_strategy_keys(strategy, boxes, points, sensor_origin)))
+
+
+def gripper_quaternions(
+    approaches: ArrayLike, closings: ArrayLike, approach_axis: ApproachAxis = 'z'
+) -> FloatArray:
+    """
+    Return the gripper orientations (x, y, z, w; w >= 0) of approach and closing directions.
+
+    :param approaches: (G, 3) unit approach directions.
+    :param closings: (G, 3) unit closing directions, perpendicular to the approaches.
+    :param approach_axis: the pose convention (``docs/grasp_rules.md``).
+    :return: (G, 4) quaternions.
+    """
+    approach = np.asarray(approaches, dtype=np.float64).reshape(-1, 3)
+    closing = np.asarray(closings, dtype=np.float64).reshape(-1, 3)
+    if approach_axis == 'z':
+        columns = (np.cross(closing, approach), closing, approach)
+    else:
+        columns = (approach, closing, np.cross(approach, closing))
+    if not len(approach):
+        return np.zeros((0, 4))
+    quaternions = Rotation.from_matrix(np.stack(columns, axis=-1)).as_quat()
+    quaternions[quaternions[:, 3] < 0.0] *= -1.0
+    return quaternions
 
 
 def _tie_rounded(keys: FloatArray) -> FloatArray:
@@ -491,6 +551,11 @@ def _hypotheses(
             + plane[3]
         )
         keep &= np.all(heights >= settings.support_clearance, axis=0)
+    if not settings.far_side:
+        centres = _object_centres(boxes, points, view)
+        sight = centres - view.sensor_origin
+        sight /= np.maximum(np.linalg.norm(sight, axis=1, keepdims=True), 1e-300)
+        keep &= np.einsum('bfrk,bk->bfr', approach_per_roll, sight) >= -1e-9
 
     # Poses.
     if settings.approach_axis == 'z':
@@ -525,6 +590,7 @@ def _hypotheses(
                 roll_deg=ROLLS_DEG[roll_i],
                 score=float(scores[box_i]),
                 object_index=view.object_index(box_i),
+                depth=settings.standoff,
             )
         )
     stats = GraspStats(
@@ -556,6 +622,7 @@ def grasp_hypotheses(
     sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
     max_grasps: int = 0,
     object_indices: Sequence[int] | None = None,
+    far_side: bool = True,
 ) -> list[Grasp]:
     """
     Return face-approach grasp hypotheses on leaf boxes, filtered and ranked (best first).
@@ -592,6 +659,9 @@ def grasp_hypotheses(
     :param max_grasps: return at most this many, best first (default 0: all).
     :param object_indices: the object each box belongs to (one per box), copied to
         :attr:`Grasp.object_index`; None: all 0.
+    :param far_side: keep approaches from the far side of their object as seen from
+        ``sensor_origin`` (default True, the paper); False removes those whose approach points
+        back towards the sensor (``docs/grasp_rules.md``).
     :return: the surviving hypotheses sorted best first.
     :raises ValueError: on an unknown strategy or approach axis, or an invalid parameter.
     :raises TypeError: when the input is neither a decomposition nor a sequence of boxes.
@@ -607,6 +677,7 @@ def grasp_hypotheses(
         contact_tolerance=contact_tolerance,
         contact_fraction=contact_fraction,
         max_grasps=max_grasps,
+        far_side=far_side,
     )
     grasps, _ = _hypotheses(source, settings, _View.of(up, sensor_origin, object_indices))
     return grasps[: settings.max_grasps] if settings.max_grasps > 0 else grasps
@@ -617,6 +688,7 @@ def grasp_filter_counts(
     *,
     up: ArrayLike | None = None,
     sensor_origin: ArrayLike = (0.0, 0.0, 0.0),
+    object_indices: Sequence[int] | None = None,
     **options: Any,
 ) -> GraspStats:
     """
@@ -625,6 +697,7 @@ def grasp_filter_counts(
     :param source: as for :func:`grasp_hypotheses`.
     :param up: as for :func:`grasp_hypotheses`.
     :param sensor_origin: as for :func:`grasp_hypotheses`.
+    :param object_indices: as for :func:`grasp_hypotheses`.
     :param options: the fields of :class:`GraspSettings`; ``max_grasps`` is no filter and does
         not change the counts.
     :return: the counts: faces and hypotheses before any filter, after occlusion, after the
@@ -632,4 +705,5 @@ def grasp_filter_counts(
     :raises ValueError: for an invalid option.
     :raises TypeError: when the input is neither a decomposition nor a sequence of boxes.
     """
-    return _hypotheses(source, GraspSettings(**options), _View.of(up, sensor_origin, None))[1]
+    view = _View.of(up, sensor_origin, object_indices)
+    return _hypotheses(source, GraspSettings(**options), view)[1]

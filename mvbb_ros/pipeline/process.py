@@ -21,6 +21,13 @@ from mvbb_ros.geometry.completion import complete_view, CompletedView
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.objects import separate_objects
+from mvbb_ros.geometry.refine import (
+    GraspView,
+    refine_grasps,
+    RefinedGrasps,
+    surface_model,
+    SurfaceModel,
+)
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.settings import PipelineSettings
@@ -64,7 +71,8 @@ class PipelineResult:
     `warning` says why the result is empty when the input could not be used (the node logs it,
     throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
     Boxes are numbered across objects: :attr:`leaves` lists every object's leaves in object
-    order, and each grasp's ``box_index`` indexes it.
+    order, and each grasp's ``box_index`` indexes it. `refinement` says what the refinement
+    tried (None when it is off).
     """
 
     counts: FilterCounts
@@ -72,6 +80,7 @@ class PipelineResult:
     grasps: list[Grasp] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
     warning: str | None = None
+    refinement: RefinedGrasps | None = None
 
     @property
     def leaves(self) -> list[Box]:
@@ -177,6 +186,8 @@ def process_points(
     settings: PipelineSettings | None = None,
     timings_ms: dict[str, float] | None = None,
     decoded: Decoded | None = None,
+    *,
+    previous: Grasp | None = None,
 ) -> PipelineResult:
     """
     Filter, decompose and grasp finite `points` (N, 3) in metres.
@@ -189,6 +200,9 @@ def process_points(
     :param decoded: what the decoder measured when `points` are its ``decoded.points``, already
         cropped to the settings' crop box (:func:`process_cloud`): their bounds and the finite
         count, which spare the filters a pass over the points.
+    :param previous: the top grasp of the previous cloud of the same stream, in the same frame
+        (None for a first cloud): with the refinement on, it stays on top while it still holds
+        and scores within ``grasp_hysteresis`` of the best (``docs/grasp_rules.md``).
     :return: the result; empty with a `warning` when the points cannot be one object in
         metres (:func:`implausible_extent`) or too few points remain.
     """
@@ -252,15 +266,91 @@ def process_points(
 
     start = time.perf_counter()
     result = PipelineResult(counts=counts, objects=objects, timings_ms=timings)
+    refining = settings.refinement.enabled
+    options = asdict(settings.grasps)
+    if refining:
+        options['max_grasps'] = 0  # every hypothesis is a seed
     result.grasps = grasp_hypotheses(
         result.leaves,
         up=view.up,
         sensor_origin=view.viewpoint,
         object_indices=result.leaf_object_indices,
-        **asdict(settings.grasps),
+        **options,
     )
     timings['grasps'] = (time.perf_counter() - start) * 1e3
+    if refining:
+        start = time.perf_counter()
+        models = [object_surface(item, spacing, view.up) for item in objects]
+        result.refinement = refine_grasps(
+            result.grasps,
+            result.leaves,
+            result.leaf_object_indices,
+            models,
+            settings.refinement,
+            grasp_view(settings),
+            previous,
+        )
+        result.grasps = result.refinement.grasps
+        timings['refine'] = (time.perf_counter() - start) * 1e3
     return result
+
+
+def grasp_view(settings: PipelineSettings) -> GraspView:
+    """Return what the refinement needs of the gripper and the view, from the settings."""
+    grasps, view = settings.grasps, settings.view
+    up = None
+    if view.up is not None:
+        up = np.asarray(view.up, dtype=np.float64)
+        up = up / np.linalg.norm(up)
+    return GraspView(
+        gripper_max_width=grasps.gripper_max_width,
+        standoff=grasps.standoff,
+        approach_axis=grasps.approach_axis,
+        strategy=grasps.strategy,
+        up=up,
+        viewpoint=np.asarray(view.viewpoint, dtype=np.float64),
+        far_side=grasps.far_side,
+        max_approach_elevation_deg=grasps.max_approach_elevation_deg,
+        support_clearance=SUPPORT_CLEARANCE,
+        max_grasps=grasps.max_grasps,
+    )
+
+
+#: Refined grasps keep their pads this far above the object's lowest point (metres) when the up
+#: direction is known: the object stands on something there.
+SUPPORT_CLEARANCE = 0.005
+
+
+def object_surface(item: ObjectResult, spacing: float, up: ArrayLike | None) -> SurfaceModel:
+    """
+    Return the surface of one object for the refinement: its observed and estimated points.
+
+    When nothing was asked to estimate the hidden side (``shape_completion: none``), the
+    object's leaf boxes stand for it: their volume is sampled every `spacing`.
+    """
+    shape = item.shape
+    points = shape.points
+    if shape.method == 'none' and item.decomposition.leaves:
+        filled = [box_samples(box, spacing) for box in item.decomposition.leaves]
+        points = np.concatenate([points, *filled])
+    return surface_model(points, observed=shape.observed, cell=spacing, up=up)
+
+
+#: The most samples of one box's volume (coarser beyond).
+MAX_BOX_SAMPLES = 20_000
+
+
+def box_samples(box: Box, step: float) -> FloatArray:
+    """Return points filling `box` on a grid every `step` (coarser for very large boxes)."""
+    cells = np.prod(np.maximum(box.extents / step, 1.0))
+    if cells > MAX_BOX_SAMPLES:
+        step *= (cells / MAX_BOX_SAMPLES) ** (1.0 / 3.0)
+    axes = [
+        np.linspace(-half, half, max(2, int(np.ceil(2.0 * half / step)) + 1))
+        for half in box.half_extents
+    ]
+    grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 3)
+    return box.to_world(grid)
 
 
 def decode_cloud(cloud: Any, settings: PipelineSettings | None = None) -> Decoded:

@@ -10,6 +10,7 @@ not load Open3D, which the filters use):
 * ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.DecompositionSettings`; the
   paper's defaults;
 * ``grasps``: :class:`~mvbb_ros.geometry.grasps.GraspSettings`; the library's defaults;
+* ``refinement``: :class:`~mvbb_ros.geometry.refine.RefinementSettings`; off (the paper);
 * ``node``: :class:`NodeSettings` (this module): what only the node uses.
 
 :data:`SPECS` lists every tunable the node exposes, once: its flat parameter name (the ROS
@@ -40,6 +41,7 @@ from typing import Any, get_args, Literal
 from mvbb_ros.geometry.completion import Completion, COMPLETIONS
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
+from mvbb_ros.geometry.refine import RefinementSettings
 from mvbb_ros.geometry.split import SPLIT_MEASURES
 import yaml
 
@@ -371,6 +373,78 @@ SPECS: tuple[SettingSpec, ...] = (
         field='strategy',
     ),
     SettingSpec(
+        'far_side_grasps',
+        GraspSettings,
+        bool,
+        'Offer grasps that approach from the far side of the object as seen from the '
+        'viewpoint (the hand moving back towards the sensor, through what it cannot see).',
+        field='far_side',
+        node_default=False,
+    ),
+    # Grasps checked, refined and scored on the points (docs/grasp_rules.md).
+    SettingSpec(
+        'grasp_refinement',
+        RefinementSettings,
+        bool,
+        "Check, refine and score the paper's face hypotheses on the points (observed and "
+        'estimated): contacts on both sides within the opening, inside the friction cones. '
+        "Off: the paper's hypotheses as they are.",
+        field='enabled',
+        node_default=True,
+    ),
+    SettingSpec(
+        'grasp_friction',
+        RefinementSettings,
+        float,
+        'Friction coefficient mu of the finger pads: the contact line must lie within '
+        'atan(mu) of both surface normals.',
+        (0.0, 10.0),
+        field='friction',
+    ),
+    SettingSpec(
+        'finger_pad_size',
+        RefinementSettings,
+        float,
+        'Side of the square finger pads in metres, along the approach and across it.',
+        (1e-4, 1.0),
+        field='pad_size',
+    ),
+    SettingSpec(
+        'finger_depth',
+        RefinementSettings,
+        float,
+        'How far past the first contact the fingertips may go, metres (shallower depths are '
+        'tried too).',
+        (1e-4, 1.0),
+    ),
+    SettingSpec(
+        'grasp_width_margin',
+        RefinementSettings,
+        float,
+        'Added to the opening the object needs along the closing line for the published '
+        'width, metres (the width never exceeds gripper_max_width).',
+        (0.0, 1.0),
+        field='width_margin',
+    ),
+    SettingSpec(
+        'grasp_hysteresis',
+        RefinementSettings,
+        float,
+        "The previous cloud's top grasp stays on top while it still holds and scores within "
+        'this of the best new grasp (0: always the best).',
+        (0.0, 1.0),
+        field='hysteresis',
+    ),
+    SettingSpec(
+        'grasp_preference',
+        RefinementSettings,
+        float,
+        'Weight of grasp_strategy in the score of refined grasps; the rest is the contact '
+        'quality, so the strategy reorders grasps of close quality.',
+        (0.0, 1.0),
+        field='preference',
+    ),
+    SettingSpec(
         'max_grasps',
         GraspSettings,
         int,
@@ -433,6 +507,7 @@ class PipelineSettings:
     :ivar view: the sensor's position and up, objects and their hidden side.
     :ivar decomposition: the fit-and-split decomposition (``decompose``'s arguments).
     :ivar grasps: the grasp hypotheses (``grasp_hypotheses``' arguments).
+    :ivar refinement: the hypotheses checked, refined and scored on the points.
     :ivar node: what only the node uses (the tree topic, the input QoS).
     """
 
@@ -442,6 +517,9 @@ class PipelineSettings:
         default_factory=lambda: _node_defaults(DecompositionSettings)
     )
     grasps: GraspSettings = field(default_factory=lambda: _node_defaults(GraspSettings))
+    refinement: RefinementSettings = field(
+        default_factory=lambda: _node_defaults(RefinementSettings)
+    )
     node: NodeSettings = field(default_factory=lambda: _node_defaults(NodeSettings))
 
     @classmethod
@@ -452,6 +530,7 @@ class PipelineSettings:
             view=ViewSettings(),
             decomposition=DecompositionSettings(),
             grasps=GraspSettings(),
+            refinement=RefinementSettings(),
             node=NodeSettings(),
         )
 
