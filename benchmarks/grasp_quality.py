@@ -7,6 +7,8 @@ and soft-finger contact model (:mod:`mvbb_ros.evaluation`):
 * the spherical baseline (the paper's 22104 grasps at 10 degrees),
 * the 24 grasps of the root box of the model's vertices,
 * the face-grasp hypotheses after decomposition at t = 0.90, 0.94 and 0.98,
+* the same hypotheses refined on the model's even 5k surface sample (issue 16; ``--no-refine``
+  skips them): :func:`mvbb_ros.evaluation.experiment.refined_hypotheses`, at most 200 each,
 
 then write one (epsilon, V) scatter plot per model (``docs/grasp_quality_<model>.png``) and the
 tables into ``docs/grasp_quality.md``, between the markers ``<!-- BEGIN GENERATED -->`` and
@@ -55,6 +57,9 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
 BEGIN, END = '<!-- BEGIN GENERATED -->', '<!-- END GENERATED -->'
 
+#: The even surface sample of each model that refined grasps are checked on (a complete scan).
+SURFACE_SUFFIX = ('_vertices.npy', '_surface5k.npy')
+
 #: name -> (mesh file, vertex cloud, units as the MANIFEST states them)
 MODELS: dict[str, tuple[str, str, str]] = {
     'mug': ('graspit_mug_mesh.ply', 'graspit_mug_vertices.npy', 'mm (GraspIt!)'),
@@ -96,6 +101,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         type=float,
         default=DEFAULT_DEPTH_FACTOR,
         help='finger depth / object diameter',
+    )
+    parser.add_argument(
+        '--refine',
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also score each decomposition's hypotheses refined on the model's 5k surface "
+        'sample (issue 16; default: yes)',
     )
     parser.add_argument('--json', type=Path, help='also write every summary row as JSON')
     parser.add_argument(
@@ -204,9 +216,14 @@ def main(argv=None) -> int:
         gripper = ParallelJawGripper.for_object(
             target.diameter, width_factor=args.width_factor, depth_factor=args.depth_factor
         )
+        surface = None
+        if args.refine:
+            surface = np.load(models_dir / cloud_file.replace(*SURFACE_SUFFIX)).astype(np.float64)
         comparison = compare_grasp_sets(
             target,
             points,
+            refine=args.refine,
+            surface=surface,
             name=name,
             gripper=gripper,
             thresholds=args.thresholds,

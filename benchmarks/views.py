@@ -80,8 +80,14 @@ CONFIGS: dict[str, dict[str, Any]] = {
     # the up direction a robot knows from TF.
     'node': {'preset': 'node', 'params': {}, 'up': False},
     'node+up': {'preset': 'node', 'params': {}, 'up': True},
-    # Issue 16's measuring conditions: a 14 cm opening, up from the table.
+    # Issue 16's measuring conditions: a 14 cm opening, up from the table; the node's grasps
+    # (refined on the points) and the paper's hypotheses on the same boxes (refinement off).
     'node+up/14cm': {'preset': 'node', 'params': {'gripper_max_width': 0.14}, 'up': True},
+    'seeds+up/14cm': {
+        'preset': 'node',
+        'params': {'gripper_max_width': 0.14, 'grasp_refinement': False},
+        'up': True,
+    },
 }
 
 #: Columns of the raw rows (``--json``), one row per view (or scan), configuration and t.
@@ -110,8 +116,22 @@ GRASP_COLUMNS = (
     'epsilon',
     'same_pairs',
     'pairs',
+    'kept',
     'ms',
+    'refine_ms',
+    'width',
+    'contact_width',
+    'thin_widths',
+    'below',
+    'far_side',
+    'grasps_checked',
 )
+#: An approach rises more than this above the horizontal: from below (the grasp stage's
+#: ``max_approach_elevation_deg`` default).
+BELOW_SIN = 0.7071067811865476
+#: Published widths under this on an object thicker than :data:`THICK_OBJECT` are too thin.
+THIN_WIDTH = 0.01
+THICK_OBJECT = 0.03
 
 
 @dataclass(frozen=True)
@@ -177,7 +197,10 @@ def measure_view(view, config: Config, thresholds: Sequence[float], grasps: bool
 
     Box rows: one per threshold (frame 0). Grasp row (t = 0.94, when `grasps`): the judge on
     frame 0's hypotheses, the simulator's epsilon of the top one, and the top grasps of
-    :data:`STEADY_FRAMES` frames of the same view with fresh noise.
+    :data:`STEADY_FRAMES` frames of the same view with fresh noise, each frame given the
+    previous frame's top grasp (the node's hysteresis); the top grasp's published width and
+    the judge's contact distance; how many published grasps are thinner than 1 cm (on objects
+    thicker than 3 cm), approach from below or from the far side.
     """
     from mvbb_ros.evaluation.grasp_judge import STATUS_NAMES, steady_pairs
     from mvbb_ros.pipeline.process import process_points
@@ -214,11 +237,16 @@ def measure_view(view, config: Config, thresholds: Sequence[float], grasps: bool
     epsilon = float(view.simulated_epsilon(hypotheses[:1], width)[0]) if hypotheses else 0.0
     tops = [hypotheses[0] if hypotheses else None]
     costs = [first.total_ms]
+    refine_costs = [first.timings_ms.get('refine', 0.0)]
+    kept = 0
     for number in range(1, STEADY_FRAMES):
-        result = process_points(view.frame(number), settings)
+        result = process_points(view.frame(number), settings, previous=tops[-1])
         tops.append(result.grasps[0] if result.grasps else None)
         costs.append(result.total_ms)
+        refine_costs.append(result.timings_ms.get('refine', 0.0))
+        kept += bool(result.refinement is not None and result.refinement.kept_previous)
     same, pairs = steady_pairs(tops)
+    feasibility = published_checks(view, hypotheses)
     grasp_row = {
         'config': config.label,
         'mesh': view.obj.name,
@@ -231,9 +259,49 @@ def measure_view(view, config: Config, thresholds: Sequence[float], grasps: bool
         'epsilon': epsilon,
         'same_pairs': same,
         'pairs': pairs,
+        'kept': kept,
         'ms': statistics.median(costs),
+        'refine_ms': statistics.median(refine_costs),
+        'width': float(hypotheses[0].width) if hypotheses else None,
+        'contact_width': _contact_width(verdicts),
+        **feasibility,
+        'grasps_checked': None if first.refinement is None else first.refinement.candidates,
     }
     return rows, grasp_row
+
+
+def _contact_width(verdicts) -> float | None:
+    """Return the judge's distance between the top grasp's two contacts (None without)."""
+    import numpy as np
+
+    if not len(verdicts) or not np.all(np.isfinite(verdicts.contacts[0])):
+        return None
+    return float(np.linalg.norm(verdicts.contacts[0, 0] - verdicts.contacts[0, 1]))
+
+
+def published_checks(view, grasps) -> dict[str, int]:
+    """
+    Count the published grasps that are too thin, from below or from the far side.
+
+    Thin: width under :data:`THIN_WIDTH` on an object whose smallest extent exceeds
+    :data:`THICK_OBJECT`. Below: the approach rises more than 45 degrees (world up). Far side:
+    the approach points back towards the camera (its dot product with the direction from the
+    camera to the object's centre is negative).
+    """
+    import numpy as np
+
+    if not grasps:
+        return {'thin_widths': 0, 'below': 0, 'far_side': 0}
+    approach = np.array([np.asarray(g.approach, dtype=np.float64) for g in grasps])
+    widths = np.array([g.width for g in grasps])
+    thick = float(np.min(np.ptp(view.obj.vertices, axis=0))) > THICK_OBJECT
+    sight = view.to_camera(view.obj.center)
+    sight = sight / np.linalg.norm(sight)
+    return {
+        'thin_widths': int(np.count_nonzero(widths < THIN_WIDTH)) if thick else 0,
+        'below': int(np.count_nonzero(approach @ view.up > BELOW_SIN)),
+        'far_side': int(np.count_nonzero(approach @ sight < -1e-6)),
+    }
 
 
 def measure_scan(scan, config: Config, thresholds: Sequence[float]) -> list[dict[str, Any]]:
@@ -410,6 +478,55 @@ def grasp_table(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]) -> str
     return _table(GRASP_TABLE_HEADER, out)
 
 
+FEASIBILITY_HEADER = (
+    'config',
+    'views',
+    'grasps',
+    'widths < 1 cm',
+    'from below',
+    'far side',
+    'top width - contacts (median)',
+    'kept by hysteresis',
+    'lines checked / view',
+    'refine ms (median)',
+)
+
+
+def feasibility_table(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]) -> str:
+    """
+    Count published grasps per configuration: too thin, from below, from the far side.
+
+    The width column is the median over views of the top grasp's published width minus the
+    judge's distance between its contacts (the width margin plus what the points missed).
+    """
+    out = []
+    for label in labels:
+        sel = [r for r in rows if r['config'] == label]
+        if not sel:
+            continue
+        gaps = [
+            r['width'] - r['contact_width']
+            for r in sel
+            if r.get('width') is not None and r.get('contact_width') is not None
+        ]
+        checked = [r['grasps_checked'] for r in sel if r.get('grasps_checked') is not None]
+        out.append(
+            (
+                label,
+                str(len(sel)),
+                str(sum(r['hypotheses'] for r in sel)),
+                str(sum(r.get('thin_widths', 0) for r in sel)),
+                str(sum(r.get('below', 0) for r in sel)),
+                str(sum(r.get('far_side', 0) for r in sel)),
+                f'{100 * statistics.median(gaps):+.1f} cm' if gaps else '-',
+                f'{sum(r.get("kept", 0) for r in sel)}/{sum(r["pairs"] for r in sel)}',
+                f'{_mean(checked):.0f}' if checked else '-',
+                f'{statistics.median(r.get("refine_ms", 0.0) for r in sel):.0f}',
+            )
+        )
+    return _table(FEASIBILITY_HEADER, out)
+
+
 def mesh_grasp_table(rows: Sequence[Mapping[str, Any]], labels: Sequence[str]) -> str:
     """Per mesh: views whose top grasp holds and views where one of the top five does."""
     header = ['mesh']
@@ -506,6 +623,8 @@ class Results:
                 mesh_grasp_table(self.grasps, self.configs),
                 "\nHow the top grasp ends (the judge's furthest step):\n",
                 status_table(self.grasps, self.configs),
+                "\nPublished grasps: widths, feasibility, hysteresis and the refinement's cost:\n",
+                feasibility_table(self.grasps, self.configs),
             ]
         return '\n'.join(parts)
 

@@ -46,6 +46,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.geometry.raster',
     'mvbb_ros.geometry.completion',
     'mvbb_ros.geometry.objects',
+    'mvbb_ros.geometry.refine',
 )
 
 

@@ -68,7 +68,7 @@ def test_grasp_candidates_hold_every_grasp_in_order(result):
         PointField.INT32
     ] * len(GRASP_INDEX_FIELDS)
     assert cloud.header == header and cloud.height == 1 and cloud.width == len(result.grasps)
-    assert cloud.point_step == 4 * len(GRASP_FIELDS), 'packed: 12 fields of 4 bytes'
+    assert cloud.point_step == 4 * len(GRASP_FIELDS), 'packed: 13 fields of 4 bytes'
 
     ours = read_fields(cloud)
     theirs = _struct_rows(cloud)
@@ -82,6 +82,7 @@ def test_grasp_candidates_hold_every_grasp_in_order(result):
         np.testing.assert_allclose(quaternion, grasp.quaternion, atol=1e-6)
         assert row['width'] == pytest.approx(grasp.width, rel=1e-6)
         assert row['score'] == pytest.approx(grasp.score, rel=1e-6)
+        assert row['depth'] == pytest.approx(grasp.depth, rel=1e-6)
         assert (row['box_index'], row['object_index'], row['face']) == (
             grasp.box_index,
             grasp.object_index,

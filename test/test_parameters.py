@@ -120,11 +120,11 @@ def test_a_fault_inside_processing_is_logged_and_the_next_cloud_processed(monkey
     calls = {'count': 0}
     real_process_cloud = mvbb_ros.ros.node.process_cloud
 
-    def failing_once(cloud, settings):
+    def failing_once(cloud, settings, **options):
         calls['count'] += 1
         if calls['count'] == 1:
             raise RuntimeError('injected fault')
-        return real_process_cloud(cloud, settings)
+        return real_process_cloud(cloud, settings, **options)
 
     monkeypatch.setattr(mvbb_ros.ros.node, 'process_cloud', failing_once)
     graph = Graph()

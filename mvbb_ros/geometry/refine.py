@@ -42,12 +42,14 @@ DEFAULT_PAD_SIZE = 0.02
 DEFAULT_FINGER_DEPTH = 0.03
 DEFAULT_FRICTION = 0.5
 DEFAULT_WIDTH_MARGIN = 0.01
-DEFAULT_HYSTERESIS = 0.1
+DEFAULT_HYSTERESIS = 0.3
 DEFAULT_PREFERENCE = 0.1
 #: Finger depths tried, as fractions of the finger depth (the deepest is the finger depth).
 DEPTH_FRACTIONS: tuple[float, ...] = (1.0 / 3.0, 2.0 / 3.0, 1.0)
 #: Slides of the grasp centre over the face, as fractions of the face's extent across the pads.
 SLIDES: tuple[float, ...] = (-0.3, -0.15, 0.0, 0.15, 0.3)
+#: Approaches per closing axis, evenly turned about it from the next box axis (4: the faces).
+APPROACHES_PER_AXIS = 8
 #: Rolls of the closing direction about the approach, degrees.
 ROLLS: tuple[float, ...] = (-20.0, 0.0, 20.0)
 #: Quality weights: friction-cone margin, pad support, finger clearance (they sum to 1).
@@ -55,7 +57,7 @@ WEIGHT_MARGIN = 0.5
 WEIGHT_SUPPORT = 0.3
 WEIGHT_CLEARANCE = 0.2
 #: An estimated (not observed) point counts this much towards a pad's support.
-ESTIMATED_WEIGHT = 0.5
+ESTIMATED_WEIGHT = 0.25
 #: Finger clearance counts fully from this many pad sizes on.
 CLEARANCE_PADS = 0.5
 #: A pad's contact patch: points within this many grid cells of its first touch.
@@ -64,6 +66,8 @@ PATCH_CELLS = 0.6
 SUPPORT_CELLS = 1.5
 #: Normals: PCA of the surface points within this many grid cells.
 NORMAL_CELLS = 2.0
+#: Normals of sparse points take a wider neighbourhood until it holds this many points.
+MIN_NEIGHBOURS = 8
 #: The largest occupancy grid (cells); coarser cells beyond.
 MAX_GRID_CELLS = 4_000_000
 #: Two grasps are the same (the list keeps the better) within this share of the pad size ...
@@ -87,6 +91,7 @@ class RefinementSettings:
     :ivar hysteresis: the previous frame's top grasp stays on top while its score is within this
         of the best new one.
     :ivar preference: weight of the task strategy in the score (the rest is the quality).
+    :ivar depth_fractions: the finger depths tried, as fractions of `finger_depth`.
     """
 
     enabled: bool = False
@@ -96,6 +101,7 @@ class RefinementSettings:
     width_margin: float = DEFAULT_WIDTH_MARGIN
     hysteresis: float = DEFAULT_HYSTERESIS
     preference: float = DEFAULT_PREFERENCE
+    depth_fractions: tuple[float, ...] = DEPTH_FRACTIONS
 
     def __post_init__(self) -> None:
         for name in ('friction', 'width_margin', 'hysteresis'):
@@ -104,6 +110,8 @@ class RefinementSettings:
         for name in ('pad_size', 'finger_depth'):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
+        if not self.depth_fractions or min(self.depth_fractions) <= 0.0:
+            raise ValueError(f'depth_fractions must be > 0, got {self.depth_fractions}')
         if not 0.0 <= self.preference <= 1.0:
             raise ValueError(f'preference must be in [0, 1], got {self.preference}')
 
@@ -176,10 +184,12 @@ def _smallest_eigenvector(
 @nb.njit('float64[:, :](float64[:, :], float64)', cache=True)
 def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     """
-    Return each point's normal: the PCA of the points within `radius` (zero for fewer than 4).
+    Return each point's normal: the PCA of its neighbours (zero when it has too few).
 
-    The points are binned in cubic cells one radius wide and each point's neighbours are
-    looked up in its own cell and the 26 around it (binary search in the sorted cell keys).
+    The neighbours are the points within `radius`, or within 2 or 4 times it when fewer than
+    :data:`MIN_NEIGHBOURS` are that close (sparse samples). The points are binned in cubic cells
+    one radius wide and the cells around each point are looked up by binary search in the
+    sorted cell keys.
     """
     count = points.shape[0]
     normals = np.zeros((count, 3))
@@ -189,46 +199,49 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     span = np.empty(3, dtype=np.int64)
     for axis in range(3):
         low[axis] = points[:, axis].min()
-        span[axis] = int((points[:, axis].max() - low[axis]) / radius) + 3
+        span[axis] = int((points[:, axis].max() - low[axis]) / radius) + 11
     cells = np.empty((count, 3), dtype=np.int64)
     keys = np.empty(count, dtype=np.int64)
     for i in range(count):
         for axis in range(3):
-            cells[i, axis] = int((points[i, axis] - low[axis]) / radius) + 1
+            cells[i, axis] = int((points[i, axis] - low[axis]) / radius) + 5
         keys[i] = (cells[i, 0] * span[1] + cells[i, 1]) * span[2] + cells[i, 2]
     order = np.argsort(keys)
     sorted_keys = keys[order]
-    squared = radius * radius
     for i in range(count):
-        n = 0
-        sx = sy = sz = 0.0
-        sxx = sxy = sxz = syy = syz = szz = 0.0
-        for dx in range(-1, 2):
-            for dy in range(-1, 2):
-                for dz in range(-1, 2):
-                    key = ((cells[i, 0] + dx) * span[1] + cells[i, 1] + dy) * span[2] + (
-                        cells[i, 2] + dz
-                    )
-                    start = np.searchsorted(sorted_keys, key)
-                    for k in range(start, count):
-                        if sorted_keys[k] != key:
-                            break
-                        j = order[k]
-                        x = points[j, 0] - points[i, 0]
-                        y = points[j, 1] - points[i, 1]
-                        z = points[j, 2] - points[i, 2]
-                        if x * x + y * y + z * z > squared:
-                            continue
-                        n += 1
-                        sx += x
-                        sy += y
-                        sz += z
-                        sxx += x * x
-                        sxy += x * y
-                        sxz += x * z
-                        syy += y * y
-                        syz += y * z
-                        szz += z * z
+        for reach in (1, 2, 4):
+            squared = (reach * radius) ** 2
+            n = 0
+            sx = sy = sz = 0.0
+            sxx = sxy = sxz = syy = syz = szz = 0.0
+            for dx in range(-reach, reach + 1):
+                for dy in range(-reach, reach + 1):
+                    for dz in range(-reach, reach + 1):
+                        key = ((cells[i, 0] + dx) * span[1] + cells[i, 1] + dy) * span[2] + (
+                            cells[i, 2] + dz
+                        )
+                        start = np.searchsorted(sorted_keys, key)
+                        for k in range(start, count):
+                            if sorted_keys[k] != key:
+                                break
+                            j = order[k]
+                            x = points[j, 0] - points[i, 0]
+                            y = points[j, 1] - points[i, 1]
+                            z = points[j, 2] - points[i, 2]
+                            if x * x + y * y + z * z > squared:
+                                continue
+                            n += 1
+                            sx += x
+                            sy += y
+                            sz += z
+                            sxx += x * x
+                            sxy += x * y
+                            sxz += x * z
+                            syy += y * y
+                            syz += y * z
+                            szz += z * z
+            if n >= MIN_NEIGHBOURS:
+                break
         if n < 4:
             continue
         mx, my, mz = sx / n, sy / n, sz / n
@@ -635,9 +648,9 @@ def _frames(box: Box, up: FloatArray | None, view: FloatArray | None) -> list[tu
     pairs = []
     for k in range(3):
         closing = axes[k]
-        for j in ((k + 1) % 3, (k + 2) % 3):
-            for sign in (-1.0, 1.0):
-                pairs.append((sign * axes[j], closing))
+        first, second = axes[(k + 1) % 3], axes[(k + 2) % 3]
+        for angle in np.deg2rad(np.arange(0.0, 360.0, 360.0 / APPROACHES_PER_AXIS)):
+            pairs.append((math.cos(angle) * first + math.sin(angle) * second, closing))
         for direction in (None if up is None else -up, view):
             if direction is None:
                 continue
@@ -774,7 +787,7 @@ def evaluate_lines(
     :param view: the gripper's opening, standoff and the support.
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
-    depths = settings.finger_depth * np.array(DEPTH_FRACTIONS)
+    depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
     up = np.zeros(3) if view.up is None else np.asarray(view.up, dtype=np.float64)
     return _evaluate(
         model.points,
@@ -916,9 +929,10 @@ def rescore_grasp(
     The grasp's line is tried as it is and slid across the pads by up to a quarter pad
     (:data:`RESCORE_SLIDES`) and rolled by up to 10 degrees (:data:`RESCORE_ROLLS`), all of which
     a robot takes for the same grasp; each is centred again between what the fingers pass and
-    stops again at the new first contact, on every object's surface. The best that holds is
-    returned with the width and score of the new points; its box is the nearest box of its
-    object to its closing point.
+    stops again at the new first contact, on every object's surface. Where the fingertips
+    close must stay within one pad size of where they closed before (an object that moved
+    further is grasped anew). The best that holds is returned with the width and score of the
+    new points; its box is the nearest box of its object to its closing point.
 
     :return: the re-scored grasp, or None when it is not feasible or does not hold any more.
     """
@@ -935,12 +949,19 @@ def rescore_grasp(
     ).reshape(-1, 3)
     closings = np.repeat(turned, len(offsets), axis=0)
     approaches = np.broadcast_to(approach, closings.shape)
+    before = np.asarray(grasp.position, dtype=np.float64) + grasp.depth * approach
     best: tuple[float, int, int, FloatArray] | None = None
     for number, model in enumerate(models):
         if not _feasible(approach[None, :], np.array([number]), models, view)[0]:
             continue
         rows = evaluate_lines(model, origins, approaches, closings, settings, view)
-        quality = np.where(rows[:, COL_VALID] > 0.0, rows[:, COL_QUALITY], -1.0)
+        tips = (
+            origins
+            + rows[:, COL_TIP][:, None] * approaches
+            + rows[:, COL_CENTER][:, None] * closings
+        )
+        near = np.linalg.norm(tips - before, axis=1) <= settings.pad_size
+        quality = np.where((rows[:, COL_VALID] > 0.0) & near, rows[:, COL_QUALITY], -1.0)
         pick = int(np.argmax(quality))
         if quality[pick] >= 0.0 and (best is None or quality[pick] > best[0]):
             best = (float(quality[pick]), number, pick, rows[pick])

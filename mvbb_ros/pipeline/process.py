@@ -365,11 +365,15 @@ def decode_cloud(cloud: Any, settings: PipelineSettings | None = None) -> Decode
     return decode_points(cloud, crop_min=filtering.crop_min, crop_max=filtering.crop_max)
 
 
-def process_cloud(cloud: Any, settings: PipelineSettings) -> PipelineResult:
+def process_cloud(
+    cloud: Any, settings: PipelineSettings, *, previous: Grasp | None = None
+) -> PipelineResult:
     """
     Run the whole pipeline on one `sensor_msgs/PointCloud2` (never modified).
 
-    A malformed cloud gives an empty result whose `warning` says what is wrong.
+    A malformed cloud gives an empty result whose `warning` says what is wrong. `previous` is
+    the previous cloud's top grasp, as for :func:`process_points` (:class:`GraspMemory` keeps
+    it).
     """
     start = time.perf_counter()
     try:
@@ -381,4 +385,28 @@ def process_cloud(cloud: Any, settings: PipelineSettings) -> PipelineResult:
         return PipelineResult(
             counts=_empty_counts(), timings_ms=timings, warning='cloud has no finite points'
         )
-    return process_points(decoded.points, settings, timings, decoded)
+    return process_points(decoded.points, settings, timings, decoded, previous=previous)
+
+
+class GraspMemory:
+    """
+    The top grasp of the last cloud of a stream, for the hysteresis of the next one.
+
+    The node and `mvbb bag process` keep one: :meth:`previous` gives the last top grasp when the
+    new cloud is in the same frame (a grasp in another frame means nothing there), and
+    :meth:`remember` stores the new result's top grasp (none after a cloud without grasps, so
+    the next cloud starts afresh).
+    """
+
+    def __init__(self) -> None:
+        self._frame: str | None = None
+        self._grasp: Grasp | None = None
+
+    def previous(self, frame_id: str) -> Grasp | None:
+        """Return the last top grasp if it was found in frame `frame_id`, else None."""
+        return self._grasp if frame_id == self._frame else None
+
+    def remember(self, frame_id: str, result: PipelineResult | None) -> None:
+        """Keep `result`'s top grasp (or nothing) as the previous one for frame `frame_id`."""
+        self._frame = frame_id
+        self._grasp = result.grasps[0] if result is not None and result.grasps else None

@@ -8,7 +8,7 @@ Build the node's output messages from pipeline results (a thin layer over the ge
 - grasps: a `geometry_msgs/PoseArray`, best first;
 - grasp_candidates: a `sensor_msgs/PointCloud2` with one point per grasp in the order of
   ``grasps``: float32 fields :data:`GRASP_FLOAT_FIELDS` (position, orientation, the opening the
-  gripper needs and the score) and int32 fields :data:`GRASP_INDEX_FIELDS`;
+  gripper needs, the score and the depth) and int32 fields :data:`GRASP_INDEX_FIELDS`;
 - tree: the inner (split) boxes of the hierarchy as edges and labels (``tree_`` prefix);
 - box_list: a `sensor_msgs/PointCloud2` with one point per box, the leaves first (in the order
   of ``boxes``), then the inner boxes (in the order of ``tree``): :data:`BOX_FLOAT_FIELDS` and
@@ -62,8 +62,9 @@ OUTPUT_TYPES: dict[str, type] = {
     'grasp_candidates': PointCloud2,
 }
 #: float32 fields of ``~/grasp_candidates`` after x, y, z (the gripper frame's origin):
-#: orientation (x, y, z, w), the opening the gripper needs (metres) and the score in [0, 1].
-GRASP_FLOAT_FIELDS = ('qx', 'qy', 'qz', 'qw', 'width', 'score')
+#: orientation (x, y, z, w), the opening the gripper needs (metres), the score in [0, 1] and
+#: how far the gripper moves along its approach before closing (metres).
+GRASP_FLOAT_FIELDS = ('qx', 'qy', 'qz', 'qw', 'width', 'score', 'depth')
 #: int32 fields of ``~/grasp_candidates``: the leaf box (its index on ``~/boxes`` and
 #: ``~/box_list``), the object of the cloud, and the face (+x, -x, +y, -y, +z, -z of the box).
 GRASP_INDEX_FIELDS = ('box_index', 'object_index', 'face')
@@ -199,6 +200,7 @@ def grasp_candidates_cloud(grasps: Sequence[Grasp], header: Header) -> PointClou
     }
     floats['width'] = [grasp.width for grasp in grasps]
     floats['score'] = [grasp.score for grasp in grasps]
+    floats['depth'] = [grasp.depth for grasp in grasps]
     integers = {
         'box_index': [grasp.box_index for grasp in grasps],
         'object_index': [grasp.object_index for grasp in grasps],

@@ -40,7 +40,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from mvbb_ros.kernels import warm_up_logged
 from mvbb_ros.pipeline.explain import empty_grasps_note
-from mvbb_ros.pipeline.process import PipelineResult, process_cloud
+from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import (
     is_ros_parameter,
     PipelineSettings,
@@ -190,6 +190,7 @@ class DecomposerNode(Node):
         self._last_cloud: PointCloud2 | None = None
         self._last_result: PipelineResult | None = None
         self._last_error: str | None = None
+        self._grasp_memory = GraspMemory()  # the last top grasp, for the hysteresis
         self._stats = {
             'clouds_received': 0,
             'clouds_processed': 0,
@@ -336,9 +337,12 @@ class DecomposerNode(Node):
     def _process(self, cloud: PointCloud2, *, reprocess: bool) -> None:
         """Run the pipeline on `cloud` and publish; any failure publishes cleared outputs."""
         start = time.perf_counter()
+        frame = str(cloud.header.frame_id)
         try:
-            result = process_cloud(cloud, self._settings)
+            previous = self._grasp_memory.previous(frame)
+            result = process_cloud(cloud, self._settings, previous=previous)
         except Exception as error:  # the node must survive any cloud, whatever goes wrong
+            self._grasp_memory.remember(frame, None)
             self._count('clouds_failed', reprocess)
             self._last_error = f'{type(error).__name__}: {error}'
             if self._due('failed'):
@@ -356,6 +360,7 @@ class DecomposerNode(Node):
         else:
             self._count('clouds_processed', reprocess)
         self._last_result = result
+        self._grasp_memory.remember(frame, result)
         self._publish(cloud, result)
         self.get_logger().debug(
             f'{result.counts.finite} points -> {len(result.leaves)} boxes, '

@@ -22,7 +22,7 @@ from typing import Any
 
 from mvbb_ros.cli.atomic import atomic_path
 from mvbb_ros.pipeline.explain import empty_grasps_note
-from mvbb_ros.pipeline.process import PipelineResult, process_cloud
+from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.bag import BagError, BagWriter, CLOUD_TYPE, CloudBag, ros_type_name
 from mvbb_ros.ros.messages import output_messages, OUTPUT_TYPES
@@ -128,18 +128,28 @@ CloudCallback = Callable[[ProcessedCloud, PointCloud2, PipelineResult | None], N
 
 
 def run_pipeline(
-    cloud: PointCloud2, settings: PipelineSettings
+    cloud: PointCloud2, settings: PipelineSettings, memory: GraspMemory | None = None
 ) -> tuple[PipelineResult | None, str]:
     """
     Run the node's pipeline on one rclpy cloud, surviving any failure as the node does.
 
+    :param cloud: the cloud.
+    :param settings: the settings.
+    :param memory: the previous cloud's top grasp (the hysteresis, as in the node), updated
+        with this cloud's; None: no memory.
     :return: ``(result, note)``: the pipeline result (None when processing raised) and why the
         outputs are empty, or why there are boxes but no grasps ('' when neither).
     """
+    frame = str(cloud.header.frame_id)
+    previous = None if memory is None else memory.previous(frame)
     try:
-        result = process_cloud(cloud, settings)
+        result = process_cloud(cloud, settings, previous=previous)
     except Exception as error:  # the node survives any cloud; so does the offline tool
+        if memory is not None:
+            memory.remember(frame, None)
         return None, f'processing failed: {type(error).__name__}: {error}'
+    if memory is not None:
+        memory.remember(frame, result)
     return result, result.warning or empty_grasps_note(result, settings)
 
 
@@ -218,9 +228,10 @@ def process_bag(
                     out.add_topic(f'{prefix}/{suffix}', ros_type_name(message_class))
             if on_start is not None:
                 on_start(bag.count([cloud_topic]))
+            memory = GraspMemory()  # the node's hysteresis, cloud after cloud
             for index, item in enumerate(bag.clouds([cloud_topic])):
                 cloud = item.message()
-                result, note = run_pipeline(cloud, settings)
+                result, note = run_pipeline(cloud, settings, memory)
                 if with_input:
                     out.write(cloud_topic, item.timestamp_ns, item.cdr)
                 outputs = output_messages(result, cloud.header, settings)
