@@ -13,6 +13,7 @@ from mvbb_ros.cli.synthetic import segmented_object_cloud
 from mvbb_ros.geometry.completion import COMPLETIONS
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
+from mvbb_ros.geometry.refine import RefinementSettings
 from mvbb_ros.geometry.split import SPLIT_MEASURES
 from mvbb_ros.pipeline.settings import (
     config_files,
@@ -55,6 +56,7 @@ def test_every_spec_sets_a_typed_field_of_a_stage():
         ViewSettings,
         DecompositionSettings,
         GraspSettings,
+        RefinementSettings,
         NodeSettings,
     ], 'pipeline order'
     for stage in STAGES.values():

@@ -37,7 +37,8 @@ def _filter_steps(
         ),
         (
             stats.after_support,
-            f'support: every remaining approach comes from below ({below}) or too close to it',
+            f'support: every remaining approach comes from below ({below}) or too close to it'
+            + ('' if grasps.far_side else ', or from the far side (far_side_grasps: false)'),
         ),
     ]
 
@@ -58,6 +59,7 @@ def empty_grasps_note(result: PipelineResult, settings: PipelineSettings) -> str
         result.leaves,
         up=settings.view.up,
         sensor_origin=settings.view.viewpoint,
+        object_indices=result.leaf_object_indices,
         **asdict(settings.grasps),
     )
     thinnest = min(float(box.extents.min()) for box in result.leaves)
@@ -68,4 +70,13 @@ def empty_grasps_note(result: PipelineResult, settings: PipelineSettings) -> str
     for left, reason in _filter_steps(stats, settings, thinnest):
         if left == 0:
             return f'{stats.boxes} boxes, 0 grasps: {reason}; {counts}'
+    refined = result.refinement
+    if refined is not None:
+        grasps = settings.grasps
+        return (
+            f'{stats.boxes} boxes, 0 grasps: refinement: none of {refined.candidates} grasp lines '
+            f'closes on the points within gripper_max_width {grasps.gripper_max_width:g} m with '
+            f'both contacts inside the friction cones (grasp_friction '
+            f'{settings.refinement.friction:g}) and its pads clear of the support; {counts}'
+        )
     return f'{stats.boxes} boxes, 0 grasps; {counts}'
