@@ -47,6 +47,10 @@ DEFAULT_SUPPORT_CLEARANCE = 0.01
 DEFAULT_CONTACT_FRACTION = 0.1
 #: Default limit on upward approaches, degrees above the horizontal.
 DEFAULT_MAX_APPROACH_ELEVATION_DEG = 45.0
+#: Without far-side grasps, an approach must turn at least this far (degrees) from
+#: perpendicular to the viewing direction, away from the sensor: the object's centre is
+#: estimated from what the sensor saw, which lies towards the sensor.
+FAR_SIDE_MARGIN_DEG = 3.0
 
 
 def _readonly(values: ArrayLike) -> FloatArray:
@@ -555,7 +559,8 @@ def _hypotheses(
         centres = _object_centres(boxes, points, view)
         sight = centres - view.sensor_origin
         sight /= np.maximum(np.linalg.norm(sight, axis=1, keepdims=True), 1e-300)
-        keep &= np.einsum('bfrk,bk->bfr', approach_per_roll, sight) >= -1e-9
+        margin = np.sin(np.deg2rad(FAR_SIDE_MARGIN_DEG))
+        keep &= np.einsum('bfrk,bk->bfr', approach_per_roll, sight) >= margin
 
     # Poses.
     if settings.approach_axis == 'z':

@@ -28,6 +28,7 @@ from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.grasps import (
     ApproachAxis,
+    FAR_SIDE_MARGIN_DEG,
     Grasp,
     gripper_quaternions,
     Strategy,
@@ -813,7 +814,8 @@ def _feasible(
     if not view.far_side and view.viewpoint is not None:
         centers = np.array([model.center for model in models])[objects]
         sight = _unit_rows(centers - view.viewpoint)
-        keep &= np.einsum('ij,ij->i', approaches, sight) >= -1e-9
+        margin = math.sin(math.radians(FAR_SIDE_MARGIN_DEG))
+        keep &= np.einsum('ij,ij->i', approaches, sight) >= margin
     return keep
 
 
