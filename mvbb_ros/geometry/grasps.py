@@ -371,7 +371,7 @@ def _object_centres(boxes: Sequence[Box], points: FloatArray | None, view: _View
     for number in np.unique(objects):
         mine = np.flatnonzero(objects == number)
         own = points if len(np.unique(objects)) == 1 else None
-        centres[mine] = _object_centroid([boxes[i] for i in mine], own)
+        centres[mine] = _object_centroid([boxes[int(i)] for i in mine], own)
     return centres
 
 

@@ -611,7 +611,9 @@ class _Candidates:
     closings: list[FloatArray] = field(default_factory=list)
     boxes: list[IndexArray] = field(default_factory=list)
 
-    def add(self, origins: FloatArray, approaches: FloatArray, closings: FloatArray, box: int):
+    def add(
+        self, origins: FloatArray, approaches: FloatArray, closings: FloatArray, box: int
+    ) -> None:
         """Add rows (broadcast to the origins' count)."""
         count = len(origins)
         self.origins.append(origins)
@@ -748,7 +750,9 @@ class RefinedGrasps:
     kept_previous: bool = False
 
 
-def _parameters(settings: RefinementSettings, view: GraspView, cell: float, floor: float):
+def _parameters(
+    settings: RefinementSettings, view: GraspView, cell: float, floor: float
+) -> FloatArray:
     pad = settings.pad_size
     params = np.zeros(PARAMETER_COUNT)
     params[P_HALF] = view.gripper_max_width / 2.0
