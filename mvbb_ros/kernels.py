@@ -46,6 +46,8 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.geometry.raster',
     'mvbb_ros.geometry.completion',
     'mvbb_ros.geometry.objects',
+    'mvbb_ros.geometry.surface',
+    'mvbb_ros.geometry.contacts',
     'mvbb_ros.geometry.refine',
 )
 

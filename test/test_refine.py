@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from mvbb_ros import grasp_hypotheses, PipelineSettings, process_points
 from mvbb_ros.evaluation.grasp_judge import same_grasp
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.refine import (
+from mvbb_ros.geometry.contacts import (
     COL_CONTACT_WIDTH,
     COL_MARGIN,
     COL_QUALITY,
@@ -17,10 +17,10 @@ from mvbb_ros.geometry.refine import (
     COL_WIDTH,
     evaluate_lines,
     GraspView,
-    refine_grasps,
     RefinementSettings,
-    surface_model,
 )
+from mvbb_ros.geometry.refine import refine_grasps
+from mvbb_ros.geometry.surface import surface_model
 from mvbb_ros.pipeline.process import GraspMemory
 import numpy as np
 import pytest

@@ -11,9 +11,9 @@ from mvbb_ros.cli.main import build_parser, main
 from mvbb_ros.cli.options import settings_from_args
 from mvbb_ros.cli.synthetic import segmented_object_cloud
 from mvbb_ros.geometry.completion import COMPLETIONS
+from mvbb_ros.geometry.contacts import RefinementSettings
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
-from mvbb_ros.geometry.refine import RefinementSettings
 from mvbb_ros.geometry.split import SPLIT_MEASURES
 from mvbb_ros.pipeline.settings import (
     config_files,

@@ -26,15 +26,12 @@ from mvbb_ros.evaluation.spherical import (
     spherical_grasps,
 )
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
+from mvbb_ros.geometry.contacts import GraspView, RefinementSettings
 from mvbb_ros.geometry.decomposition import decompose
 from mvbb_ros.geometry.fit import minimum_bounding_box
 from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.geometry.refine import (
-    GraspView,
-    refine_grasps,
-    RefinementSettings,
-    surface_model,
-)
+from mvbb_ros.geometry.refine import refine_grasps
+from mvbb_ros.geometry.surface import surface_model
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree

@@ -5,17 +5,12 @@ The paper's hypotheses (:func:`~mvbb_ros.geometry.grasps.grasp_hypotheses`) appr
 face centre; on a curved or partly seen object that centre rarely gives two antipodal contacts.
 :func:`refine_grasps` tries each seed, slid over its face and rolled a little, and more
 candidates closing along every box axis (approaching along the other axes, from above and from
-the sensor), on the object's points: the observed ones and the estimate of the hidden side
-(:class:`~mvbb_ros.geometry.completion.CompletedView`), seen as a surface
-(:func:`surface_model`: the boundary cells of their occupancy grid, with normals from the PCA
-of their neighbours). A candidate is a pad gripper moving along its approach line to the first
-contact and past it by a finger depth; it holds when no finger meets the object on the way,
-both pads touch within the opening and the line between the two contacts lies inside both
-friction cones. Its quality in [0, 1] weighs the friction-cone margin, the pads' support and
-the fingers' clearance; the task strategy (largest, smallest, outermost, nearest box) reorders
-close qualities. :func:`rescore_grasp` checks a previous frame's grasp on the new points, for
-the hysteresis of :func:`refine_grasps`. The exact rules are in ``docs/grasp_rules.md``; the
-inner loops are numba kernels.
+the sensor), on each object's surface (:mod:`mvbb_ros.geometry.surface`) with the pad gripper
+of :mod:`mvbb_ros.geometry.contacts`; it keeps the feasible approaches (none from below, none
+from the far side), scores what holds by its quality over small pose errors with the task
+strategy's preference, and drops repeats. :func:`rescore_grasp` checks a previous frame's grasp
+on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
+``docs/grasp_rules.md``.
 """
 
 from __future__ import annotations
@@ -26,523 +21,35 @@ import math
 
 from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.grasps import (
-    ApproachAxis,
-    FAR_SIDE_MARGIN_DEG,
-    Grasp,
-    gripper_quaternions,
-    Strategy,
+from mvbb_ros.geometry.contacts import (
+    COL_CENTER,
+    COL_DEPTH,
+    COL_FIRST,
+    COL_QUALITY,
+    COL_TIP,
+    COL_VALID,
+    COL_WIDTH,
+    evaluate_lines,
+    EVALUATION_COLUMNS,
+    GraspView,
+    RefinementSettings,
 )
+from mvbb_ros.geometry.grasps import FAR_SIDE_MARGIN_DEG, Grasp, gripper_quaternions
+from mvbb_ros.geometry.surface import SurfaceModel
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
-#: Defaults (metres): the judge's pads, finger depths past the first contact, width margin.
-DEFAULT_PAD_SIZE = 0.02
-DEFAULT_FINGER_DEPTH = 0.03
-DEFAULT_FRICTION = 0.5
-DEFAULT_WIDTH_MARGIN = 0.01
-DEFAULT_HYSTERESIS = 0.3
-DEFAULT_PREFERENCE = 0.1
-#: Finger depths tried, as fractions of the finger depth (the deepest is the finger depth).
-DEPTH_FRACTIONS: tuple[float, ...] = (1.0 / 3.0, 2.0 / 3.0, 1.0)
 #: Slides of the grasp centre over the face, as fractions of the face's extent across the pads.
 SLIDES: tuple[float, ...] = (-0.3, -0.15, 0.0, 0.15, 0.3)
 #: Approaches per closing axis, evenly turned about it from the next box axis (4: the faces).
 APPROACHES_PER_AXIS = 8
 #: Rolls of the closing direction about the approach, degrees.
 ROLLS: tuple[float, ...] = (-20.0, 0.0, 20.0)
-#: Quality weights: friction-cone margin, pad support, finger clearance (they sum to 1).
-WEIGHT_MARGIN = 0.5
-WEIGHT_SUPPORT = 0.3
-WEIGHT_CLEARANCE = 0.2
-#: An estimated (not observed) point counts this much towards a pad's support.
-ESTIMATED_WEIGHT = 0.25
-#: Finger clearance counts fully from this many pad sizes on.
-CLEARANCE_PADS = 0.5
-#: A pad's contact patch: points within this many grid cells of its first touch.
-PATCH_CELLS = 0.6
-#: A pad's support: points within this many grid cells of its first touch.
-SUPPORT_CELLS = 1.5
-#: Normals: PCA of the surface points within this many grid cells.
-NORMAL_CELLS = 2.0
-#: Normals of sparse points take a wider neighbourhood until it holds this many points.
-MIN_NEIGHBOURS = 8
-#: The largest occupancy grid (cells); coarser cells beyond.
-MAX_GRID_CELLS = 4_000_000
 #: Two grasps are the same (the list keeps the better) within this share of the pad size ...
 SAME_PADS = 0.5
 #: ... and this angle between their hand frames (a half turn about the approach is the same).
 SAME_ANGLE_DEG = 15.0
-
-
-@dataclass(frozen=True)
-class RefinementSettings:
-    """
-    The settings of the refinement stage (:func:`refine_grasps`); off by default (the paper).
-
-    :ivar enabled: refine and score the hypotheses on the points; off: the paper's hypotheses.
-    :ivar friction: Coulomb friction coefficient mu of the pads (the cone's half-angle is
-        atan(mu)).
-    :ivar pad_size: side of the square finger pads, along the approach and across it.
-    :ivar finger_depth: the deepest the fingertips go past the first contact; shallower depths
-        (:data:`DEPTH_FRACTIONS`) are tried too.
-    :ivar width_margin: added to the opening the object needs, for the published width.
-    :ivar hysteresis: the previous frame's top grasp stays on top while its score is within this
-        of the best new one.
-    :ivar preference: weight of the task strategy in the score (the rest is the quality).
-    :ivar depth_fractions: the finger depths tried, as fractions of `finger_depth`.
-    """
-
-    enabled: bool = False
-    friction: float = DEFAULT_FRICTION
-    pad_size: float = DEFAULT_PAD_SIZE
-    finger_depth: float = DEFAULT_FINGER_DEPTH
-    width_margin: float = DEFAULT_WIDTH_MARGIN
-    hysteresis: float = DEFAULT_HYSTERESIS
-    preference: float = DEFAULT_PREFERENCE
-    depth_fractions: tuple[float, ...] = DEPTH_FRACTIONS
-
-    def __post_init__(self) -> None:
-        for name in ('friction', 'width_margin', 'hysteresis'):
-            if not getattr(self, name) >= 0.0:
-                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
-        for name in ('pad_size', 'finger_depth'):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
-        if not self.depth_fractions or min(self.depth_fractions) <= 0.0:
-            raise ValueError(f'depth_fractions must be > 0, got {self.depth_fractions}')
-        if not 0.0 <= self.preference <= 1.0:
-            raise ValueError(f'preference must be in [0, 1], got {self.preference}')
-
-
-# Surface model -----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class SurfaceModel:
-    """
-    One object's surface as the refinement sees it: the boundary of its occupancy grid.
-
-    :ivar points: (K, 3) the centroid of each boundary cell's points.
-    :ivar normals: (K, 3) unit surface normals (PCA of the neighbours; sign arbitrary; zero
-        where too few neighbours).
-    :ivar weights: (K,) 1 for a cell with an observed point, :data:`ESTIMATED_WEIGHT` otherwise.
-    :ivar cell: the grid's cell size.
-    :ivar floor: the object's lowest height along `up` (the support it stands on); -inf when up
-        is unknown.
-    :ivar center: (3,) the mean of the observed points.
-    """
-
-    points: FloatArray
-    normals: FloatArray
-    weights: FloatArray
-    cell: float
-    floor: float
-    center: FloatArray
-
-
-@nb.njit(cache=True)
-def _smallest_eigenvector(
-    a00: float, a01: float, a02: float, a11: float, a12: float, a22: float
-) -> tuple[float, float, float]:
-    """Return the unit eigenvector of the smallest eigenvalue of a symmetric 3 x 3 matrix."""
-    p1 = a01 * a01 + a02 * a02 + a12 * a12
-    q = (a00 + a11 + a22) / 3.0
-    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
-    p = math.sqrt(p2 / 6.0)
-    if p <= 1e-300:
-        return 0.0, 0.0, 0.0
-    b00, b11, b22 = (a00 - q) / p, (a11 - q) / p, (a22 - q) / p
-    b01, b02, b12 = a01 / p, a02 / p, a12 / p
-    det = (
-        b00 * (b11 * b22 - b12 * b12)
-        - b01 * (b01 * b22 - b12 * b02)
-        + b02 * (b01 * b12 - b11 * b02)
-    )
-    r = min(1.0, max(-1.0, det / 2.0))
-    phi = math.acos(r) / 3.0
-    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
-    r0 = (a00 - smallest, a01, a02)
-    r1 = (a01, a11 - smallest, a12)
-    r2 = (a02, a12, a22 - smallest)
-    best = (0.0, 0.0, 0.0)
-    best_norm = 0.0
-    for u, v in ((r0, r1), (r0, r2), (r1, r2)):
-        x = u[1] * v[2] - u[2] * v[1]
-        y = u[2] * v[0] - u[0] * v[2]
-        z = u[0] * v[1] - u[1] * v[0]
-        norm = math.sqrt(x * x + y * y + z * z)
-        if norm > best_norm:
-            best_norm = norm
-            best = (x, y, z)
-    if best_norm <= 1e-300:
-        return 0.0, 0.0, 0.0
-    return best[0] / best_norm, best[1] / best_norm, best[2] / best_norm
-
-
-@nb.njit('float64[:, :](float64[:, :], float64)', cache=True)
-def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
-    """
-    Return each point's normal: the PCA of its neighbours (zero when it has too few).
-
-    The neighbours are the points within `radius`, or within 2 or 4 times it when fewer than
-    :data:`MIN_NEIGHBOURS` are that close (sparse samples). The points are binned in cubic cells
-    one radius wide and the cells around each point are looked up by binary search in the
-    sorted cell keys.
-    """
-    count = points.shape[0]
-    normals = np.zeros((count, 3))
-    if count == 0:
-        return normals
-    low = np.empty(3)
-    span = np.empty(3, dtype=np.int64)
-    for axis in range(3):
-        low[axis] = points[:, axis].min()
-        span[axis] = int((points[:, axis].max() - low[axis]) / radius) + 11
-    cells = np.empty((count, 3), dtype=np.int64)
-    keys = np.empty(count, dtype=np.int64)
-    for i in range(count):
-        for axis in range(3):
-            cells[i, axis] = int((points[i, axis] - low[axis]) / radius) + 5
-        keys[i] = (cells[i, 0] * span[1] + cells[i, 1]) * span[2] + cells[i, 2]
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
-    for i in range(count):
-        for reach in (1, 2, 4):
-            squared = (reach * radius) ** 2
-            n = 0
-            sx = sy = sz = 0.0
-            sxx = sxy = sxz = syy = syz = szz = 0.0
-            for dx in range(-reach, reach + 1):
-                for dy in range(-reach, reach + 1):
-                    for dz in range(-reach, reach + 1):
-                        key = ((cells[i, 0] + dx) * span[1] + cells[i, 1] + dy) * span[2] + (
-                            cells[i, 2] + dz
-                        )
-                        start = np.searchsorted(sorted_keys, key)
-                        for k in range(start, count):
-                            if sorted_keys[k] != key:
-                                break
-                            j = order[k]
-                            x = points[j, 0] - points[i, 0]
-                            y = points[j, 1] - points[i, 1]
-                            z = points[j, 2] - points[i, 2]
-                            if x * x + y * y + z * z > squared:
-                                continue
-                            n += 1
-                            sx += x
-                            sy += y
-                            sz += z
-                            sxx += x * x
-                            sxy += x * y
-                            sxz += x * z
-                            syy += y * y
-                            syz += y * z
-                            szz += z * z
-            if n >= MIN_NEIGHBOURS:
-                break
-        if n < 4:
-            continue
-        mx, my, mz = sx / n, sy / n, sz / n
-        nx, ny, nz = _smallest_eigenvector(
-            sxx / n - mx * mx,
-            sxy / n - mx * my,
-            sxz / n - mx * mz,
-            syy / n - my * my,
-            syz / n - my * mz,
-            szz / n - mz * mz,
-        )
-        normals[i, 0] = nx
-        normals[i, 1] = ny
-        normals[i, 2] = nz
-    return normals
-
-
-def surface_model(
-    points: ArrayLike,
-    *,
-    observed: int | None = None,
-    cell: float,
-    up: ArrayLike | None = None,
-) -> SurfaceModel:
-    """
-    Return the surface of one object's points: the boundary cells of their occupancy grid.
-
-    The points (observed first, then the estimate of the hidden side, which fills the object's
-    inside) are binned in cubic cells; small holes are closed; a cell with points that has an
-    empty face neighbour is on the surface, represented by the centroid of its points. Normals
-    are the PCA of the surface points within :data:`NORMAL_CELLS` cells.
-
-    :param points: (N, 3) the object's points, N >= 1.
-    :param observed: how many of the first points were observed (default all).
-    :param cell: the grid's cell size (the point spacing), > 0; coarser for very large objects.
-    :param up: the up direction, or None: the model's floor is its lowest point along up.
-    :return: the surface model.
-    """
-    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    seen = len(pts) if observed is None else int(observed)
-    if not cell > 0.0:
-        raise ValueError(f'cell must be > 0, got {cell!r}')
-    margin = 2
-    span = np.ptp(pts, axis=0) if len(pts) else np.zeros(3)
-    cells = float(np.prod(span / cell + 2 * margin + 1))
-    if cells > MAX_GRID_CELLS:
-        cell *= (cells / MAX_GRID_CELLS) ** (1.0 / 3.0)
-    low = pts.min(axis=0) - margin * cell
-    index = np.floor((pts - low) / cell).astype(np.int64)
-    shape = tuple(int(v) for v in index.max(axis=0) + margin + 1)
-    occupied = np.zeros(shape, dtype=bool)
-    occupied[index[:, 0], index[:, 1], index[:, 2]] = True
-    solid = ndimage.binary_closing(occupied) | occupied
-    inside = ndimage.binary_erosion(solid)
-    on_surface = occupied & ~inside
-    keep = on_surface[index[:, 0], index[:, 1], index[:, 2]]
-    flat = np.ravel_multi_index(tuple(index[keep].T), shape)
-    cells_kept, inverse = np.unique(flat, return_inverse=True)
-    counts = np.bincount(inverse, minlength=len(cells_kept)).astype(np.float64)
-    centroids = (
-        np.column_stack(
-            [
-                np.bincount(inverse, weights=pts[keep, k], minlength=len(cells_kept))
-                for k in range(3)
-            ]
-        )
-        / counts[:, None]
-    )
-    seen_cells = np.bincount(
-        inverse, weights=(np.flatnonzero(keep) < seen).astype(np.float64), minlength=len(counts)
-    )
-    weights = np.where(seen_cells > 0.0, 1.0, ESTIMATED_WEIGHT)
-    normals = _pca_normals(np.ascontiguousarray(centroids), NORMAL_CELLS * cell)
-    floor = -math.inf
-    if up is not None:
-        unit_up = np.asarray(up, dtype=np.float64)
-        floor = float(np.min(pts @ (unit_up / np.linalg.norm(unit_up))))
-    center = pts[: max(seen, 1)].mean(axis=0)
-    return SurfaceModel(centroids, normals, weights, float(cell), floor, center)
-
-
-# Evaluation --------------------------------------------------------------------------------------
-
-#: Columns of :func:`_evaluate`'s output.
-(
-    COL_VALID,
-    COL_QUALITY,
-    COL_MARGIN,
-    COL_SUPPORT,
-    COL_CLEARANCE,
-    COL_WIDTH,
-    COL_CONTACT_WIDTH,
-    COL_FIRST,
-    COL_TIP,
-    COL_CENTER,
-    COL_DEPTH,
-) = range(11)
-COL_CONTACTS = 11  # 11..16: the two contacts (the pad on +closing first)
-EVALUATION_COLUMNS = 17
-
-#: Entries of the kernel's parameter vector.
-(
-    P_HALF,
-    P_PAD,
-    P_TOLERANCE,
-    P_SUPPORT_TOLERANCE,
-    P_CONE,
-    P_MIN_CLEAR,
-    P_CLEAR_REF,
-    P_EXPECTED,
-    P_SUPPORT_CLEARANCE,
-    P_STANDOFF,
-    P_MIN_WIDTH,
-    P_FLOOR,
-    P_W_MARGIN,
-    P_W_SUPPORT,
-    P_W_CLEARANCE,
-) = range(15)
-PARAMETER_COUNT = 15
-
-
-@nb.njit(
-    'float64[:, :](float64[:, :], float64[:, :], float64[:], float64[:, :], float64[:, :], '
-    'float64[:, :], float64[:], float64[:], float64[:])',
-    cache=True,
-)
-def _evaluate(
-    points: FloatArray,
-    normals: FloatArray,
-    weights: FloatArray,
-    origins: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    depths: FloatArray,
-    params: FloatArray,
-    up: FloatArray,
-) -> FloatArray:
-    """
-    Close a pad gripper on the surface points along each candidate line (the rules: module doc).
-
-    Per candidate: the points in the pads' band across the closing direction; per finger depth,
-    the hand centred on what the fingers pass, the first contact h in the opening, the tips at
-    h + depth, the contacts where the pads first touch, the friction test on the contact line,
-    and the quality; the depth of the best quality is kept. Columns: ``COL_*``.
-    """
-    count = points.shape[0]
-    out = np.zeros((origins.shape[0], EVALUATION_COLUMNS))
-    band_u = np.empty(count)
-    band_v = np.empty(count)
-    band_k = np.empty(count, dtype=np.int64)
-    half = params[P_HALF]
-    pad = params[P_PAD]
-    cone = params[P_CONE]
-    inf = math.inf
-    for i in range(origins.shape[0]):
-        o = origins[i]
-        a = approaches[i]
-        c = closings[i]
-        s0 = a[1] * c[2] - a[2] * c[1]
-        s1 = a[2] * c[0] - a[0] * c[2]
-        s2 = a[0] * c[1] - a[1] * c[0]
-        n = 0
-        for k in range(count):
-            dx = points[k, 0] - o[0]
-            dy = points[k, 1] - o[1]
-            dz = points[k, 2] - o[2]
-            w = dx * s0 + dy * s1 + dz * s2
-            if abs(w) > pad / 2.0:
-                continue
-            band_u[n] = dx * a[0] + dy * a[1] + dz * a[2]
-            band_v[n] = dx * c[0] + dy * c[1] + dz * c[2]
-            band_k[n] = k
-            n += 1
-        if n == 0:
-            continue
-        best = -1.0
-        for di in range(depths.shape[0]):
-            depth = depths[di]
-            center = 0.0
-            first = inf
-            tip = inf
-            low = inf
-            high = -inf
-            for _ in range(4):
-                first = inf
-                for j in range(n):
-                    if abs(band_v[j] - center) <= half and band_u[j] < first:
-                        first = band_u[j]
-                if first == inf:
-                    break
-                tip = first + depth
-                low = inf
-                high = -inf
-                for j in range(n):
-                    if band_u[j] <= tip:
-                        low = min(low, band_v[j])
-                        high = max(high, band_v[j])
-                moved = 0.5 * (low + high) - center
-                center += moved
-                if abs(moved) <= 1e-12 * (1.0 + half):
-                    break
-            if first == inf:
-                continue
-            # The fingers pass everything they reach with clearance (else they collide).
-            clearance = half - max(high - center, center - low)
-            if clearance < params[P_MIN_CLEAR]:
-                continue
-            # Contacts: where each pad (the finger's last `pad` before the tip) first touches.
-            pad_low = inf
-            pad_high = -inf
-            for j in range(n):
-                if tip - pad <= band_u[j] <= tip:
-                    pad_low = min(pad_low, band_v[j])
-                    pad_high = max(pad_high, band_v[j])
-            if pad_high - pad_low < params[P_MIN_WIDTH]:
-                continue
-            contact = np.zeros(6)
-            normal = np.zeros(6)
-            patch = np.zeros(2)
-            support = np.zeros(2)
-            for j in range(n):
-                u = band_u[j]
-                if u < tip - pad or u > tip:
-                    continue
-                v = band_v[j]
-                k = band_k[j]
-                for side in range(2):
-                    gap = pad_high - v if side == 0 else v - pad_low
-                    if gap <= params[P_SUPPORT_TOLERANCE]:
-                        support[side] += weights[k]
-                    if gap > params[P_TOLERANCE]:
-                        continue
-                    sign = 1.0 if side == 0 else -1.0
-                    facing = normals[k, 0] * c[0] + normals[k, 1] * c[1] + normals[k, 2] * c[2]
-                    flip = sign if facing * sign >= 0.0 else -sign
-                    for axis in range(3):
-                        contact[3 * side + axis] += points[k, axis]
-                        normal[3 * side + axis] += flip * normals[k, axis] * sign
-                    patch[side] += 1.0
-            for axis in range(6):
-                contact[axis] /= patch[axis // 3]
-            # The contact line from the - pad's contact to the + pad's.
-            lx = contact[0] - contact[3]
-            ly = contact[1] - contact[4]
-            lz = contact[2] - contact[5]
-            length = math.sqrt(lx * lx + ly * ly + lz * lz)
-            if length <= 1e-12:
-                continue
-            worst = 0.0
-            for side in range(2):
-                nx = normal[3 * side]
-                ny = normal[3 * side + 1]
-                nz = normal[3 * side + 2]
-                norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-                if norm <= 1e-12:
-                    worst = inf
-                    break
-                sign = 1.0 if side == 0 else -1.0
-                cos = sign * (lx * nx + ly * ny + lz * nz) / (length * norm)
-                worst = max(worst, math.acos(min(1.0, max(-1.0, cos))))
-            if worst > cone:
-                continue
-            # The support: pads above the floor at the pre-grasp and the final pose.
-            if params[P_FLOOR] > -inf:
-                cu = c[0] * up[0] + c[1] * up[1] + c[2] * up[2]
-                su = s0 * up[0] + s1 * up[1] + s2 * up[2]
-                au = a[0] * up[0] + a[1] * up[1] + a[2] * up[2]
-                tip_height = (o[0] + tip * a[0] + center * c[0]) * up[0]
-                tip_height += (o[1] + tip * a[1] + center * c[1]) * up[1]
-                tip_height += (o[2] + tip * a[2] + center * c[2]) * up[2]
-                lowest = -half * abs(cu) - pad / 2.0 * abs(su) + min(0.0, -pad * au)
-                final = tip_height + lowest
-                before = final - (tip - first + params[P_STANDOFF]) * au
-                if min(final, before) < params[P_FLOOR] + params[P_SUPPORT_CLEARANCE]:
-                    continue
-            margin = 1.0 - worst / cone if cone > 0.0 else 0.0
-            held = min(support[0], support[1]) / params[P_EXPECTED]
-            quality = (
-                params[P_W_MARGIN] * margin
-                + params[P_W_SUPPORT] * min(1.0, held)
-                + params[P_W_CLEARANCE] * min(1.0, clearance / params[P_CLEAR_REF])
-            )
-            if quality <= best:
-                continue
-            best = quality
-            row = out[i]
-            row[COL_VALID] = 1.0
-            row[COL_QUALITY] = quality
-            row[COL_MARGIN] = margin
-            row[COL_SUPPORT] = min(1.0, held)
-            row[COL_CLEARANCE] = clearance
-            row[COL_WIDTH] = high - low
-            row[COL_CONTACT_WIDTH] = pad_high - pad_low
-            row[COL_FIRST] = first
-            row[COL_TIP] = tip
-            row[COL_CENTER] = center
-            row[COL_DEPTH] = depth
-            for axis in range(6):
-                row[COL_CONTACTS + axis] = contact[axis]
-    return out
 
 
 @nb.njit(
@@ -703,36 +210,6 @@ def _seed_candidates(seeds: Sequence[Grasp], boxes: Sequence[Box], pad: float) -
 # The stage ---------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class GraspView:
-    """
-    What the refinement knows of the view and the gripper beyond its settings.
-
-    :ivar gripper_max_width: the gripper's opening.
-    :ivar standoff: pre-grasp distance before the first contact.
-    :ivar approach_axis: the gripper pose convention (``docs/grasp_rules.md``).
-    :ivar strategy: the task strategy whose preference reorders close scores.
-    :ivar up: unit up direction, or None.
-    :ivar viewpoint: (3,) the sensor position, or None when the points are no single view.
-    :ivar far_side: allow approaches from the far side of the object (seen from the viewpoint).
-    :ivar max_approach_elevation_deg: approaches rising more than this above the horizontal
-        are removed (with `up`).
-    :ivar support_clearance: the pads stay this far above the object's lowest point (with `up`).
-    :ivar max_grasps: at most this many grasps (0: all distinct ones).
-    """
-
-    gripper_max_width: float
-    standoff: float
-    approach_axis: ApproachAxis = 'z'
-    strategy: Strategy = 'largest'
-    up: FloatArray | None = None
-    viewpoint: FloatArray | None = None
-    far_side: bool = True
-    max_approach_elevation_deg: float = 45.0
-    support_clearance: float = 0.0
-    max_grasps: int = 0
-
-
 @dataclass
 class RefinedGrasps:
     """
@@ -748,63 +225,6 @@ class RefinedGrasps:
     candidates: int = 0
     holding: int = 0
     kept_previous: bool = False
-
-
-def _parameters(
-    settings: RefinementSettings, view: GraspView, cell: float, floor: float
-) -> FloatArray:
-    pad = settings.pad_size
-    params = np.zeros(PARAMETER_COUNT)
-    params[P_HALF] = view.gripper_max_width / 2.0
-    params[P_PAD] = pad
-    params[P_TOLERANCE] = PATCH_CELLS * cell
-    params[P_SUPPORT_TOLERANCE] = SUPPORT_CELLS * cell
-    params[P_CONE] = math.atan(settings.friction)
-    params[P_MIN_CLEAR] = 0.0
-    params[P_CLEAR_REF] = CLEARANCE_PADS * pad
-    params[P_EXPECTED] = max(1.0, (pad / cell) ** 2 / 2.0)
-    params[P_SUPPORT_CLEARANCE] = view.support_clearance
-    params[P_STANDOFF] = view.standoff
-    params[P_MIN_WIDTH] = cell
-    params[P_FLOOR] = floor if view.up is not None else -math.inf
-    params[P_W_MARGIN] = WEIGHT_MARGIN
-    params[P_W_SUPPORT] = WEIGHT_SUPPORT
-    params[P_W_CLEARANCE] = WEIGHT_CLEARANCE
-    return params
-
-
-def evaluate_lines(
-    model: SurfaceModel,
-    origins: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    settings: RefinementSettings,
-    view: GraspView,
-) -> FloatArray:
-    """
-    Close the pad gripper along candidate lines on one surface model.
-
-    :param model: the object's surface.
-    :param origins: (C, 3) a point on each line.
-    :param approaches: (C, 3) unit approach directions.
-    :param closings: (C, 3) unit closing directions, perpendicular to the approaches.
-    :param settings: the pads, friction and finger depth.
-    :param view: the gripper's opening, standoff and the support.
-    :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
-    """
-    depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
-    up = np.zeros(3) if view.up is None else np.asarray(view.up, dtype=np.float64)
-    return _evaluate(
-        model.points,
-        model.normals,
-        model.weights,
-        np.array(origins, dtype=np.float64, order='C'),
-        np.array(approaches, dtype=np.float64, order='C'),
-        np.array(closings, dtype=np.float64, order='C'),
-        depths,
-        _parameters(settings, view, model.cell, model.floor),
-        up,
-    )
 
 
 def _feasible(
@@ -1171,16 +591,6 @@ def _same(first: Grasp, second: Grasp, settings: RefinementSettings) -> bool:
 
 
 def warm_up() -> None:
-    """Run every kernel of this module once on a small box (see :mod:`mvbb_ros.kernels`)."""
-    grid = np.stack(np.meshgrid(*[np.linspace(-0.03, 0.03, 7)] * 3, indexing='ij'), -1)
-    model = surface_model(grid.reshape(-1, 3), cell=0.01, up=(0.0, 0.0, 1.0))
-    view = GraspView(gripper_max_width=0.1, standoff=0.05, up=np.array([0.0, 0.0, 1.0]))
-    rows = evaluate_lines(
-        model,
-        np.zeros((1, 3)),
-        np.array([[0.0, 0.0, -1.0]]),
-        np.array([[1.0, 0.0, 0.0]]),
-        RefinementSettings(enabled=True),
-        view,
-    )
-    _distinct(rows[:, :3].copy(), rows[:, :3].copy(), rows[:, :3].copy(), 0.01, 0.9, 1)
+    """Run the module's kernel once (see :mod:`mvbb_ros.kernels`)."""
+    lines = np.eye(3)
+    _distinct(lines, lines, lines, 0.01, 0.9, 3)

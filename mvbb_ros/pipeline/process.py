@@ -18,16 +18,12 @@ from typing import Any
 from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.completion import complete_view, CompletedView
+from mvbb_ros.geometry.contacts import GraspView
 from mvbb_ros.geometry.decomposition import decompose, Decomposition
 from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.objects import separate_objects
-from mvbb_ros.geometry.refine import (
-    GraspView,
-    refine_grasps,
-    RefinedGrasps,
-    surface_model,
-    SurfaceModel,
-)
+from mvbb_ros.geometry.refine import refine_grasps, RefinedGrasps
+from mvbb_ros.geometry.surface import surface_model, SurfaceModel
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.settings import PipelineSettings

@@ -10,7 +10,7 @@ not load Open3D, which the filters use):
 * ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.DecompositionSettings`; the
   paper's defaults;
 * ``grasps``: :class:`~mvbb_ros.geometry.grasps.GraspSettings`; the library's defaults;
-* ``refinement``: :class:`~mvbb_ros.geometry.refine.RefinementSettings`; off (the paper);
+* ``refinement``: :class:`~mvbb_ros.geometry.contacts.RefinementSettings`; off (the paper);
 * ``node``: :class:`NodeSettings` (this module): what only the node uses.
 
 :data:`SPECS` lists every tunable the node exposes, once: its flat parameter name (the ROS
@@ -39,9 +39,9 @@ import typing
 from typing import Any, get_args, Literal
 
 from mvbb_ros.geometry.completion import Completion, COMPLETIONS
+from mvbb_ros.geometry.contacts import RefinementSettings
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
-from mvbb_ros.geometry.refine import RefinementSettings
 from mvbb_ros.geometry.split import SPLIT_MEASURES
 import yaml
 

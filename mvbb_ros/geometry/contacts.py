@@ -1,0 +1,408 @@
+"""
+A pad gripper closing on a surface model: does it hold, how well, and how wide.
+
+:func:`evaluate_lines` moves a gripper with two square pads along each candidate line (a point,
+an approach and a closing direction) on a :class:`~mvbb_ros.geometry.surface.SurfaceModel`:
+to the first contact and past it by a finger depth, centred on what the fingers pass. The line
+holds when no finger meets the object on the way, both pads touch within the opening, the pads
+stay above the support, and the line between the two contacts lies inside both friction cones;
+its quality in [0, 1] weighs the cone margin, the pads' support and the fingers' clearance.
+The inner loop is the numba kernel :func:`_evaluate`; the rules: ``docs/grasp_rules.md``.
+The settings of the refinement (:class:`RefinementSettings`) and what it knows of the view and
+the gripper (:class:`GraspView`) are here, as the check uses most of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+from mvbb_ros.arrays import FloatArray
+from mvbb_ros.geometry.grasps import ApproachAxis, Strategy
+from mvbb_ros.geometry.surface import surface_model, SurfaceModel
+import numba as nb
+import numpy as np
+
+#: Defaults (metres): the judge's pads, finger depths past the first contact, width margin.
+DEFAULT_PAD_SIZE = 0.02
+DEFAULT_FINGER_DEPTH = 0.03
+DEFAULT_FRICTION = 0.5
+DEFAULT_WIDTH_MARGIN = 0.01
+DEFAULT_HYSTERESIS = 0.3
+DEFAULT_PREFERENCE = 0.1
+#: Finger depths tried, as fractions of the finger depth (the deepest is the finger depth).
+DEPTH_FRACTIONS: tuple[float, ...] = (1.0 / 3.0, 2.0 / 3.0, 1.0)
+#: Quality weights: friction-cone margin, pad support, finger clearance (they sum to 1).
+WEIGHT_MARGIN = 0.5
+WEIGHT_SUPPORT = 0.3
+WEIGHT_CLEARANCE = 0.2
+#: Finger clearance counts fully from this many pad sizes on.
+CLEARANCE_PADS = 0.5
+#: A pad's contact patch: points within this many grid cells of its first touch.
+PATCH_CELLS = 0.6
+#: A pad's support: points within this many grid cells of its first touch.
+SUPPORT_CELLS = 1.5
+
+
+@dataclass(frozen=True)
+class RefinementSettings:
+    """
+    The settings of the refinement stage; off by default (the paper).
+
+    Read by the check here and by :func:`~mvbb_ros.geometry.refine.refine_grasps`.
+
+    :ivar enabled: refine and score the hypotheses on the points; off: the paper's hypotheses.
+    :ivar friction: Coulomb friction coefficient mu of the pads (the cone's half-angle is
+        atan(mu)).
+    :ivar pad_size: side of the square finger pads, along the approach and across it.
+    :ivar finger_depth: the deepest the fingertips go past the first contact; shallower depths
+        (:data:`DEPTH_FRACTIONS`) are tried too.
+    :ivar width_margin: added to the opening the object needs, for the published width.
+    :ivar hysteresis: the previous frame's top grasp stays on top while its score is within this
+        of the best new one.
+    :ivar preference: weight of the task strategy in the score (the rest is the quality).
+    :ivar depth_fractions: the finger depths tried, as fractions of `finger_depth`.
+    """
+
+    enabled: bool = False
+    friction: float = DEFAULT_FRICTION
+    pad_size: float = DEFAULT_PAD_SIZE
+    finger_depth: float = DEFAULT_FINGER_DEPTH
+    width_margin: float = DEFAULT_WIDTH_MARGIN
+    hysteresis: float = DEFAULT_HYSTERESIS
+    preference: float = DEFAULT_PREFERENCE
+    depth_fractions: tuple[float, ...] = DEPTH_FRACTIONS
+
+    def __post_init__(self) -> None:
+        for name in ('friction', 'width_margin', 'hysteresis'):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
+        for name in ('pad_size', 'finger_depth'):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
+        if not self.depth_fractions or min(self.depth_fractions) <= 0.0:
+            raise ValueError(f'depth_fractions must be > 0, got {self.depth_fractions}')
+        if not 0.0 <= self.preference <= 1.0:
+            raise ValueError(f'preference must be in [0, 1], got {self.preference}')
+
+
+@dataclass(frozen=True)
+class GraspView:
+    """
+    What the refinement knows of the view and the gripper beyond its settings.
+
+    :ivar gripper_max_width: the gripper's opening.
+    :ivar standoff: pre-grasp distance before the first contact.
+    :ivar approach_axis: the gripper pose convention (``docs/grasp_rules.md``).
+    :ivar strategy: the task strategy whose preference reorders close scores.
+    :ivar up: unit up direction, or None.
+    :ivar viewpoint: (3,) the sensor position, or None when the points are no single view.
+    :ivar far_side: allow approaches from the far side of the object (seen from the viewpoint).
+    :ivar max_approach_elevation_deg: approaches rising more than this above the horizontal
+        are removed (with `up`).
+    :ivar support_clearance: the pads stay this far above the object's lowest point (with `up`).
+    :ivar max_grasps: at most this many grasps (0: all distinct ones).
+    """
+
+    gripper_max_width: float
+    standoff: float
+    approach_axis: ApproachAxis = 'z'
+    strategy: Strategy = 'largest'
+    up: FloatArray | None = None
+    viewpoint: FloatArray | None = None
+    far_side: bool = True
+    max_approach_elevation_deg: float = 45.0
+    support_clearance: float = 0.0
+    max_grasps: int = 0
+
+
+#: Columns of :func:`_evaluate`'s output.
+(
+    COL_VALID,
+    COL_QUALITY,
+    COL_MARGIN,
+    COL_SUPPORT,
+    COL_CLEARANCE,
+    COL_WIDTH,
+    COL_CONTACT_WIDTH,
+    COL_FIRST,
+    COL_TIP,
+    COL_CENTER,
+    COL_DEPTH,
+) = range(11)
+COL_CONTACTS = 11  # 11..16: the two contacts (the pad on +closing first)
+EVALUATION_COLUMNS = 17
+
+#: Entries of the kernel's parameter vector.
+(
+    P_HALF,
+    P_PAD,
+    P_TOLERANCE,
+    P_SUPPORT_TOLERANCE,
+    P_CONE,
+    P_MIN_CLEAR,
+    P_CLEAR_REF,
+    P_EXPECTED,
+    P_SUPPORT_CLEARANCE,
+    P_STANDOFF,
+    P_MIN_WIDTH,
+    P_FLOOR,
+    P_W_MARGIN,
+    P_W_SUPPORT,
+    P_W_CLEARANCE,
+) = range(15)
+PARAMETER_COUNT = 15
+
+
+@nb.njit(
+    'float64[:, :](float64[:, :], float64[:, :], float64[:], float64[:, :], float64[:, :], '
+    'float64[:, :], float64[:], float64[:], float64[:])',
+    cache=True,
+)
+def _evaluate(
+    points: FloatArray,
+    normals: FloatArray,
+    weights: FloatArray,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    depths: FloatArray,
+    params: FloatArray,
+    up: FloatArray,
+) -> FloatArray:
+    """
+    Close a pad gripper on the surface points along each candidate line (the rules: module doc).
+
+    Per candidate: the points in the pads' band across the closing direction; per finger depth,
+    the hand centred on what the fingers pass, the first contact h in the opening, the tips at
+    h + depth, the contacts where the pads first touch, the friction test on the contact line,
+    and the quality; the depth of the best quality is kept. Columns: ``COL_*``.
+    """
+    count = points.shape[0]
+    out = np.zeros((origins.shape[0], EVALUATION_COLUMNS))
+    band_u = np.empty(count)
+    band_v = np.empty(count)
+    band_k = np.empty(count, dtype=np.int64)
+    half = params[P_HALF]
+    pad = params[P_PAD]
+    cone = params[P_CONE]
+    inf = math.inf
+    for i in range(origins.shape[0]):
+        o = origins[i]
+        a = approaches[i]
+        c = closings[i]
+        s0 = a[1] * c[2] - a[2] * c[1]
+        s1 = a[2] * c[0] - a[0] * c[2]
+        s2 = a[0] * c[1] - a[1] * c[0]
+        n = 0
+        for k in range(count):
+            dx = points[k, 0] - o[0]
+            dy = points[k, 1] - o[1]
+            dz = points[k, 2] - o[2]
+            w = dx * s0 + dy * s1 + dz * s2
+            if abs(w) > pad / 2.0:
+                continue
+            band_u[n] = dx * a[0] + dy * a[1] + dz * a[2]
+            band_v[n] = dx * c[0] + dy * c[1] + dz * c[2]
+            band_k[n] = k
+            n += 1
+        if n == 0:
+            continue
+        best = -1.0
+        for di in range(depths.shape[0]):
+            depth = depths[di]
+            center = 0.0
+            first = inf
+            tip = inf
+            low = inf
+            high = -inf
+            for _ in range(4):
+                first = inf
+                for j in range(n):
+                    if abs(band_v[j] - center) <= half and band_u[j] < first:
+                        first = band_u[j]
+                if first == inf:
+                    break
+                tip = first + depth
+                low = inf
+                high = -inf
+                for j in range(n):
+                    if band_u[j] <= tip:
+                        low = min(low, band_v[j])
+                        high = max(high, band_v[j])
+                moved = 0.5 * (low + high) - center
+                center += moved
+                if abs(moved) <= 1e-12 * (1.0 + half):
+                    break
+            if first == inf:
+                continue
+            # The fingers pass everything they reach with clearance (else they collide).
+            clearance = half - max(high - center, center - low)
+            if clearance < params[P_MIN_CLEAR]:
+                continue
+            # Contacts: where each pad (the finger's last `pad` before the tip) first touches.
+            pad_low = inf
+            pad_high = -inf
+            for j in range(n):
+                if tip - pad <= band_u[j] <= tip:
+                    pad_low = min(pad_low, band_v[j])
+                    pad_high = max(pad_high, band_v[j])
+            if pad_high - pad_low < params[P_MIN_WIDTH]:
+                continue
+            contact = np.zeros(6)
+            normal = np.zeros(6)
+            patch = np.zeros(2)
+            support = np.zeros(2)
+            for j in range(n):
+                u = band_u[j]
+                if u < tip - pad or u > tip:
+                    continue
+                v = band_v[j]
+                k = band_k[j]
+                for side in range(2):
+                    gap = pad_high - v if side == 0 else v - pad_low
+                    if gap <= params[P_SUPPORT_TOLERANCE]:
+                        support[side] += weights[k]
+                    if gap > params[P_TOLERANCE]:
+                        continue
+                    sign = 1.0 if side == 0 else -1.0
+                    facing = normals[k, 0] * c[0] + normals[k, 1] * c[1] + normals[k, 2] * c[2]
+                    flip = sign if facing * sign >= 0.0 else -sign
+                    for axis in range(3):
+                        contact[3 * side + axis] += points[k, axis]
+                        normal[3 * side + axis] += flip * normals[k, axis] * sign
+                    patch[side] += 1.0
+            for axis in range(6):
+                contact[axis] /= patch[axis // 3]
+            # The contact line from the - pad's contact to the + pad's.
+            lx = contact[0] - contact[3]
+            ly = contact[1] - contact[4]
+            lz = contact[2] - contact[5]
+            length = math.sqrt(lx * lx + ly * ly + lz * lz)
+            if length <= 1e-12:
+                continue
+            worst = 0.0
+            for side in range(2):
+                nx = normal[3 * side]
+                ny = normal[3 * side + 1]
+                nz = normal[3 * side + 2]
+                norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+                if norm <= 1e-12:
+                    worst = inf
+                    break
+                sign = 1.0 if side == 0 else -1.0
+                cos = sign * (lx * nx + ly * ny + lz * nz) / (length * norm)
+                worst = max(worst, math.acos(min(1.0, max(-1.0, cos))))
+            if worst > cone:
+                continue
+            # The support: pads above the floor at the pre-grasp and the final pose.
+            if params[P_FLOOR] > -inf:
+                cu = c[0] * up[0] + c[1] * up[1] + c[2] * up[2]
+                su = s0 * up[0] + s1 * up[1] + s2 * up[2]
+                au = a[0] * up[0] + a[1] * up[1] + a[2] * up[2]
+                tip_height = (o[0] + tip * a[0] + center * c[0]) * up[0]
+                tip_height += (o[1] + tip * a[1] + center * c[1]) * up[1]
+                tip_height += (o[2] + tip * a[2] + center * c[2]) * up[2]
+                lowest = -half * abs(cu) - pad / 2.0 * abs(su) + min(0.0, -pad * au)
+                final = tip_height + lowest
+                before = final - (tip - first + params[P_STANDOFF]) * au
+                if min(final, before) < params[P_FLOOR] + params[P_SUPPORT_CLEARANCE]:
+                    continue
+            margin = 1.0 - worst / cone if cone > 0.0 else 0.0
+            held = min(support[0], support[1]) / params[P_EXPECTED]
+            quality = (
+                params[P_W_MARGIN] * margin
+                + params[P_W_SUPPORT] * min(1.0, held)
+                + params[P_W_CLEARANCE] * min(1.0, clearance / params[P_CLEAR_REF])
+            )
+            if quality <= best:
+                continue
+            best = quality
+            row = out[i]
+            row[COL_VALID] = 1.0
+            row[COL_QUALITY] = quality
+            row[COL_MARGIN] = margin
+            row[COL_SUPPORT] = min(1.0, held)
+            row[COL_CLEARANCE] = clearance
+            row[COL_WIDTH] = high - low
+            row[COL_CONTACT_WIDTH] = pad_high - pad_low
+            row[COL_FIRST] = first
+            row[COL_TIP] = tip
+            row[COL_CENTER] = center
+            row[COL_DEPTH] = depth
+            for axis in range(6):
+                row[COL_CONTACTS + axis] = contact[axis]
+    return out
+
+
+def _parameters(
+    settings: RefinementSettings, view: GraspView, cell: float, floor: float
+) -> FloatArray:
+    """Return the kernel's parameter vector (entries ``P_*``) for one surface's cell and floor."""
+    pad = settings.pad_size
+    params = np.zeros(PARAMETER_COUNT)
+    params[P_HALF] = view.gripper_max_width / 2.0
+    params[P_PAD] = pad
+    params[P_TOLERANCE] = PATCH_CELLS * cell
+    params[P_SUPPORT_TOLERANCE] = SUPPORT_CELLS * cell
+    params[P_CONE] = math.atan(settings.friction)
+    params[P_MIN_CLEAR] = 0.0
+    params[P_CLEAR_REF] = CLEARANCE_PADS * pad
+    params[P_EXPECTED] = max(1.0, (pad / cell) ** 2 / 2.0)
+    params[P_SUPPORT_CLEARANCE] = view.support_clearance
+    params[P_STANDOFF] = view.standoff
+    params[P_MIN_WIDTH] = cell
+    params[P_FLOOR] = floor if view.up is not None else -math.inf
+    params[P_W_MARGIN] = WEIGHT_MARGIN
+    params[P_W_SUPPORT] = WEIGHT_SUPPORT
+    params[P_W_CLEARANCE] = WEIGHT_CLEARANCE
+    return params
+
+
+def evaluate_lines(
+    model: SurfaceModel,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    settings: RefinementSettings,
+    view: GraspView,
+) -> FloatArray:
+    """
+    Close the pad gripper along candidate lines on one surface model.
+
+    :param model: the object's surface.
+    :param origins: (C, 3) a point on each line.
+    :param approaches: (C, 3) unit approach directions.
+    :param closings: (C, 3) unit closing directions, perpendicular to the approaches.
+    :param settings: the pads, friction and finger depth.
+    :param view: the gripper's opening, standoff and the support.
+    :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
+    """
+    depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
+    up = np.zeros(3) if view.up is None else np.asarray(view.up, dtype=np.float64)
+    return _evaluate(
+        model.points,
+        model.normals,
+        model.weights,
+        np.array(origins, dtype=np.float64, order='C'),
+        np.array(approaches, dtype=np.float64, order='C'),
+        np.array(closings, dtype=np.float64, order='C'),
+        depths,
+        _parameters(settings, view, model.cell, model.floor),
+        up,
+    )
+
+
+def warm_up() -> None:
+    """Run the module's kernel once on a small box (see :mod:`mvbb_ros.kernels`)."""
+    grid = np.stack(np.meshgrid(*[np.linspace(-0.03, 0.03, 7)] * 3, indexing='ij'), -1)
+    model = surface_model(grid.reshape(-1, 3), cell=0.01, up=(0.0, 0.0, 1.0))
+    view = GraspView(gripper_max_width=0.1, standoff=0.05, up=np.array([0.0, 0.0, 1.0]))
+    evaluate_lines(
+        model,
+        np.zeros((1, 3)),
+        np.array([[0.0, 0.0, -1.0]]),
+        np.array([[1.0, 0.0, 0.0]]),
+        RefinementSettings(enabled=True),
+        view,
+    )

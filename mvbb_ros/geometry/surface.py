@@ -1,0 +1,229 @@
+"""
+One object's surface as the grasp check sees it: occupancy-grid boundary cells with normals.
+
+:func:`surface_model` bins an object's points (the observed ones, then the estimate of the
+hidden side, :class:`~mvbb_ros.geometry.completion.CompletedView`) in cubic cells, closes small
+holes and keeps the cells with an empty face neighbour, each as the centroid of its points; the
+normals are the PCA of the surface points nearby (:func:`_pca_normals`, a numba kernel that
+finds neighbours with :mod:`mvbb_ros.geometry.cells`). Observed cells weigh more than
+estimated ones. The rules: ``docs/grasp_rules.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+from mvbb_ros.arrays import FloatArray
+from mvbb_ros.geometry.cells import cell_grid, cell_key, cell_start
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import ndimage
+
+#: An estimated (not observed) point counts this much towards a pad's support.
+ESTIMATED_WEIGHT = 0.25
+#: Normals: PCA of the surface points within this many grid cells.
+NORMAL_CELLS = 2.0
+#: Normals of sparse points take a wider neighbourhood until it holds this many points.
+MIN_NEIGHBOURS = 8
+#: The largest occupancy grid (cells); coarser cells beyond.
+MAX_GRID_CELLS = 4_000_000
+#: The widest neighbourhood of a normal, in cells one radius wide.
+MAX_REACH = 4
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceModel:
+    """
+    One object's surface as the refinement sees it: the boundary of its occupancy grid.
+
+    :ivar points: (K, 3) the centroid of each boundary cell's points.
+    :ivar normals: (K, 3) unit surface normals (PCA of the neighbours; sign arbitrary; zero
+        where too few neighbours).
+    :ivar weights: (K,) 1 for a cell with an observed point, :data:`ESTIMATED_WEIGHT` otherwise.
+    :ivar cell: the grid's cell size.
+    :ivar floor: the object's lowest height along `up` (the support it stands on); -inf when up
+        is unknown.
+    :ivar center: (3,) the mean of the observed points.
+    """
+
+    points: FloatArray
+    normals: FloatArray
+    weights: FloatArray
+    cell: float
+    floor: float
+    center: FloatArray
+
+
+@nb.njit(cache=True)
+def _smallest_eigenvector(
+    a00: float, a01: float, a02: float, a11: float, a12: float, a22: float
+) -> tuple[float, float, float]:
+    """Return the unit eigenvector of the smallest eigenvalue of a symmetric 3 x 3 matrix."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
+    p = math.sqrt(p2 / 6.0)
+    if p <= 1e-300:
+        return 0.0, 0.0, 0.0
+    b00, b11, b22 = (a00 - q) / p, (a11 - q) / p, (a22 - q) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    det = (
+        b00 * (b11 * b22 - b12 * b12)
+        - b01 * (b01 * b22 - b12 * b02)
+        + b02 * (b01 * b12 - b11 * b02)
+    )
+    r = min(1.0, max(-1.0, det / 2.0))
+    phi = math.acos(r) / 3.0
+    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    r0 = (a00 - smallest, a01, a02)
+    r1 = (a01, a11 - smallest, a12)
+    r2 = (a02, a12, a22 - smallest)
+    best = (0.0, 0.0, 0.0)
+    best_norm = 0.0
+    for u, v in ((r0, r1), (r0, r2), (r1, r2)):
+        x = u[1] * v[2] - u[2] * v[1]
+        y = u[2] * v[0] - u[0] * v[2]
+        z = u[0] * v[1] - u[1] * v[0]
+        norm = math.sqrt(x * x + y * y + z * z)
+        if norm > best_norm:
+            best_norm = norm
+            best = (x, y, z)
+    if best_norm <= 1e-300:
+        return 0.0, 0.0, 0.0
+    return best[0] / best_norm, best[1] / best_norm, best[2] / best_norm
+
+
+@nb.njit('float64[:, :](float64[:, :], float64)', cache=True)
+def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
+    """
+    Return each point's normal: the PCA of its neighbours (zero when it has too few).
+
+    The neighbours are the points within `radius`, or within 2 or 4 times it when fewer than
+    :data:`MIN_NEIGHBOURS` are that close (sparse samples). The points are binned in cubic cells
+    one radius wide (:func:`~mvbb_ros.geometry.cells.cell_grid`) and the cells around each point
+    are looked up in the sorted cell keys.
+    """
+    count = points.shape[0]
+    normals = np.zeros((count, 3))
+    if count == 0:
+        return normals
+    cells, span, order, sorted_keys = cell_grid(points, radius, MAX_REACH)
+    for i in range(count):
+        for reach in (1, 2, MAX_REACH):
+            squared = (reach * radius) ** 2
+            n = 0
+            sx = sy = sz = 0.0
+            sxx = sxy = sxz = syy = syz = szz = 0.0
+            for dx in range(-reach, reach + 1):
+                for dy in range(-reach, reach + 1):
+                    for dz in range(-reach, reach + 1):
+                        key = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] + dz, span)
+                        start = cell_start(sorted_keys, key)
+                        for k in range(start, count):
+                            if sorted_keys[k] != key:
+                                break
+                            j = order[k]
+                            x = points[j, 0] - points[i, 0]
+                            y = points[j, 1] - points[i, 1]
+                            z = points[j, 2] - points[i, 2]
+                            if x * x + y * y + z * z > squared:
+                                continue
+                            n += 1
+                            sx += x
+                            sy += y
+                            sz += z
+                            sxx += x * x
+                            sxy += x * y
+                            sxz += x * z
+                            syy += y * y
+                            syz += y * z
+                            szz += z * z
+            if n >= MIN_NEIGHBOURS:
+                break
+        if n < 4:
+            continue
+        mx, my, mz = sx / n, sy / n, sz / n
+        nx, ny, nz = _smallest_eigenvector(
+            sxx / n - mx * mx,
+            sxy / n - mx * my,
+            sxz / n - mx * mz,
+            syy / n - my * my,
+            syz / n - my * mz,
+            szz / n - mz * mz,
+        )
+        normals[i, 0] = nx
+        normals[i, 1] = ny
+        normals[i, 2] = nz
+    return normals
+
+
+def surface_model(
+    points: ArrayLike,
+    *,
+    observed: int | None = None,
+    cell: float,
+    up: ArrayLike | None = None,
+) -> SurfaceModel:
+    """
+    Return the surface of one object's points: the boundary cells of their occupancy grid.
+
+    The points (observed first, then the estimate of the hidden side, which fills the object's
+    inside) are binned in cubic cells; small holes are closed; a cell with points that has an
+    empty face neighbour is on the surface, represented by the centroid of its points. Normals
+    are the PCA of the surface points within :data:`NORMAL_CELLS` cells.
+
+    :param points: (N, 3) the object's points, N >= 1.
+    :param observed: how many of the first points were observed (default all).
+    :param cell: the grid's cell size (the point spacing), > 0; coarser for very large objects.
+    :param up: the up direction, or None: the model's floor is its lowest point along up.
+    :return: the surface model.
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    seen = len(pts) if observed is None else int(observed)
+    if not cell > 0.0:
+        raise ValueError(f'cell must be > 0, got {cell!r}')
+    margin = 2
+    span = np.ptp(pts, axis=0) if len(pts) else np.zeros(3)
+    cells = float(np.prod(span / cell + 2 * margin + 1))
+    if cells > MAX_GRID_CELLS:
+        cell *= (cells / MAX_GRID_CELLS) ** (1.0 / 3.0)
+    low = pts.min(axis=0) - margin * cell
+    index = np.floor((pts - low) / cell).astype(np.int64)
+    shape = tuple(int(v) for v in index.max(axis=0) + margin + 1)
+    occupied = np.zeros(shape, dtype=bool)
+    occupied[index[:, 0], index[:, 1], index[:, 2]] = True
+    solid = ndimage.binary_closing(occupied) | occupied
+    inside = ndimage.binary_erosion(solid)
+    on_surface = occupied & ~inside
+    keep = on_surface[index[:, 0], index[:, 1], index[:, 2]]
+    flat = np.ravel_multi_index(tuple(index[keep].T), shape)
+    cells_kept, inverse = np.unique(flat, return_inverse=True)
+    counts = np.bincount(inverse, minlength=len(cells_kept)).astype(np.float64)
+    centroids = (
+        np.column_stack(
+            [
+                np.bincount(inverse, weights=pts[keep, k], minlength=len(cells_kept))
+                for k in range(3)
+            ]
+        )
+        / counts[:, None]
+    )
+    seen_cells = np.bincount(
+        inverse, weights=(np.flatnonzero(keep) < seen).astype(np.float64), minlength=len(counts)
+    )
+    weights = np.where(seen_cells > 0.0, 1.0, ESTIMATED_WEIGHT)
+    normals = _pca_normals(np.ascontiguousarray(centroids), NORMAL_CELLS * cell)
+    floor = -math.inf
+    if up is not None:
+        unit_up = np.asarray(up, dtype=np.float64)
+        floor = float(np.min(pts @ (unit_up / np.linalg.norm(unit_up))))
+    center = pts[: max(seen, 1)].mean(axis=0)
+    return SurfaceModel(centroids, normals, weights, float(cell), floor, center)
+
+
+def warm_up() -> None:
+    """Run the module's kernels once on a small box (see :mod:`mvbb_ros.kernels`)."""
+    grid = np.stack(np.meshgrid(*[np.linspace(-0.03, 0.03, 7)] * 3, indexing='ij'), -1)
+    surface_model(grid.reshape(-1, 3), cell=0.01, up=(0.0, 0.0, 1.0))
