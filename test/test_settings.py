@@ -16,11 +16,8 @@ from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.split import SPLIT_MEASURES
 from mvbb_ros.pipeline.settings import (
-    config_files,
     FilterSettings,
-    format_assignment,
     NodeSettings,
-    parse_assignments,
     PRESETS,
     SPEC_BY_NAME,
     SPECS,
@@ -28,6 +25,7 @@ from mvbb_ros.pipeline.settings import (
     STAGES,
     ViewSettings,
 )
+from mvbb_ros.pipeline.settings_text import config_files, format_assignment, parse_assignments
 import numpy as np
 import pytest
 

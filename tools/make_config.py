@@ -11,7 +11,7 @@ Run from the repository root after changing a setting in mvbb_ros/pipeline/setti
 from pathlib import Path
 import sys
 
-from mvbb_ros.pipeline.settings import config_files
+from mvbb_ros.pipeline.settings_text import config_files
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 

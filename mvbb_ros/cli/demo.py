@@ -40,12 +40,8 @@ from mvbb_ros.cli.render import Panel, render_panels
 from mvbb_ros.cli.synthetic import make_scene, scene_views
 from mvbb_ros.evaluation.camera import BACKGROUND
 from mvbb_ros.pipeline.decode import read_xyz
-from mvbb_ros.pipeline.settings import (
-    format_assignment,
-    parse_assignments,
-    PipelineSettings,
-    settings_from_mapping,
-)
+from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping
+from mvbb_ros.pipeline.settings_text import format_assignment, parse_assignments
 
 if TYPE_CHECKING:  # the ROS side is imported when the demo runs (see run_demo)
     from mvbb_ros.ros.demo_graph import DemoListener, OfflineFrame

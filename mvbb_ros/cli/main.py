@@ -32,7 +32,8 @@ from mvbb_ros.evaluation.gripper import (
 )
 from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
-from mvbb_ros.pipeline.settings import defaults, format_assignment, PipelineSettings
+from mvbb_ros.pipeline.settings import defaults, PipelineSettings
+from mvbb_ros.pipeline.settings_text import format_assignment
 import numpy as np
 from numpy.typing import ArrayLike
 

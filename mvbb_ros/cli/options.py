@@ -17,13 +17,12 @@ from typing import Any
 
 from mvbb_ros.pipeline.settings import (
     NodeSettings,
-    parse_assignments,
     PipelineSettings,
     PRESETS,
-    read_params_file,
     SettingSpec,
     SPECS,
 )
+from mvbb_ros.pipeline.settings_text import parse_assignments, read_params_file
 
 #: Short aliases of a few flags.
 SHORT_FLAGS: dict[str, str] = {'gain_threshold': '-t'}

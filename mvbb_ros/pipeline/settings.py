@@ -17,7 +17,8 @@ not load Open3D, which the filters use):
 parameter and the ``mvbb`` flag, e.g. ``gain_threshold``), the stage field it sets, its type,
 range or choices, its description and, where the node's default differs from the stage's, the
 node's default. The node declares its ROS parameters from it, ``config/decomposer.yaml`` is
-generated from it (:func:`parameters_yaml`), the ``mvbb`` command builds its flags from it, and
+generated from it (:mod:`~mvbb_ros.pipeline.settings_text`, which also reads assignments and
+parameter files), the ``mvbb`` command builds its flags from it, and
 :func:`validate_setting` checks every value against it, so a bad value is refused with the same
 reason wherever it comes from. No ROS import.
 
@@ -29,12 +30,10 @@ add one.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, MISSING, replace
 import difflib
 import math
-import os
-import textwrap
 import typing
 from typing import Any, get_args, Literal
 
@@ -43,7 +42,6 @@ from mvbb_ros.geometry.contacts import RefinementSettings
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.split import SPLIT_MEASURES
-import yaml
 
 #: What the range checks accept: (low, high) inclusive; None for no bound.
 Range = tuple[float | None, float | None]
@@ -583,7 +581,8 @@ PRESETS: dict[str, PipelineSettings] = {
 }
 
 
-def _is_number(value: Any) -> bool:
+def is_number(value: Any) -> bool:
+    """Tell whether `value` is an int or a float (not a bool)."""
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
@@ -640,7 +639,7 @@ def _check_bool(spec: SettingSpec, value: Any) -> str | None:
 def _check_number(spec: SettingSpec, value: Any) -> str | None:
     if spec.kind is int and not (isinstance(value, int) and not isinstance(value, bool)):
         return f'{spec.name} must be an integer, got {value!r}'
-    if spec.kind is float and not _is_number(value):
+    if spec.kind is float and not is_number(value):
         return f'{spec.name} must be a number, got {value!r}'
     if not math.isfinite(value):
         return f'{spec.name} must be finite, got {value!r}'
@@ -663,7 +662,7 @@ def _check_vector(spec: SettingSpec, value: Any) -> str | None:
         return f'{spec.name} must be a list of {spec.vector_length} numbers, got {value!r}'
     may_be_empty = spec.unset == () or spec.stage_default == []
     lengths = (0, spec.vector_length) if may_be_empty else (spec.vector_length,)
-    if len(values) not in lengths or not all(_is_number(v) for v in values):
+    if len(values) not in lengths or not all(is_number(v) for v in values):
         what = 'empty or ' if may_be_empty else ''
         return f'{spec.name} must be {what}{spec.vector_length} numbers, got {value!r}'
     if not all(math.isfinite(v) for v in values):
@@ -690,130 +689,6 @@ def settings_from_mapping(
     return (base if base is not None else PipelineSettings()).updated(values)
 
 
-def parse_assignments(assignments: Iterable[str]) -> dict[str, Any]:
-    """
-    Parse `name:=value` strings (as `ros2 run ... -p` takes) into typed values.
-
-    Values are read as YAML scalars or lists (true, 0.9, 20, [0, 0, 1], area), like ROS does.
-
-    :raises ValueError: for a malformed assignment or an unknown name.
-    """
-    parsed: dict[str, Any] = {}
-    for text in assignments:
-        name, separator, raw = text.partition(':=')
-        if not separator or not name:
-            raise ValueError(f'expected name:=value, got {text!r}')
-        if name not in SPEC_BY_NAME:
-            raise ValueError(unknown_setting_reason(name))
-        value = yaml.safe_load(raw) if raw else ''
-        if (
-            SPEC_BY_NAME[name].kind is float
-            and isinstance(value, int)
-            and not isinstance(value, bool)
-        ):
-            value = float(value)
-        parsed[name] = value
-    return parsed
-
-
-def format_assignment(name: str, value: Any) -> str:
-    """Return ``name:=value`` that :func:`parse_assignments` (and ROS) reads back as `value`."""
-    return f'{name}:={_yaml_value(value)}'
-
-
-def read_params_file(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """
-    Return the ``ros__parameters`` of a ROS parameter file (the first node entry with some).
-
-    rclpy's own parameters (:func:`is_ros_parameter`, e.g. ``use_sim_time``) are left out; any
-    other name that is no setting makes :meth:`PipelineSettings.updated` fail, naming it.
-
-    :raises ValueError: when the file has no ``<node>: ros__parameters:`` mapping.
-    :raises OSError: when it cannot be read.
-    """
-    with open(path) as handle:
-        document = yaml.safe_load(handle)
-    if isinstance(document, dict):
-        for entry in document.values():
-            if isinstance(entry, dict) and isinstance(entry.get('ros__parameters'), dict):
-                values = {
-                    name: value
-                    for name, value in entry['ros__parameters'].items()
-                    if not is_ros_parameter(str(name))
-                }
-                for name, value in values.items():
-                    spec = SPEC_BY_NAME.get(name)
-                    if spec is not None and spec.kind is float and _is_number(value):
-                        values[name] = float(value)
-                return values
-    raise ValueError(f'{path} has no <node>: ros__parameters: mapping')
-
-
 def defaults() -> dict[str, Any]:
     """Return the node's default value of every setting, by name (lists for vectors)."""
     return PipelineSettings().parameters()
-
-
-def _yaml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, list):
-        return '[' + ', '.join(repr(float(v)) for v in value) + ']'
-    return repr(value) if isinstance(value, float) else str(value)
-
-
-def parameters_yaml(settings: PipelineSettings, header: str, width: int = 95) -> str:
-    """
-    Return a ROS parameter file (``/**: ros__parameters:``) of `settings`, every entry described.
-
-    ``config/decomposer.yaml`` (the node's defaults) and ``config/paper.yaml`` are made by it
-    (``tools/make_config.py``); a test checks that they are up to date.
-
-    :param settings: the values to write.
-    :param header: comment lines (without ``#``) put at the top.
-    :param width: the line length to wrap the descriptions at.
-    """
-    lines = [f'# {line}'.rstrip() for line in header.strip().splitlines()]
-    lines += ['/**:', '  ros__parameters:']
-    for spec in SPECS:
-        lines += textwrap.wrap(
-            spec.description, width, initial_indent='    # ', subsequent_indent='    # '
-        )
-        value = settings.value(spec.name)
-        if spec.kind is list and not value:
-            placeholder = '[x, y, z]' if spec.vector_length == 3 else '[...]'
-            lines.append(f'    # {spec.name}: {placeholder}   (unset: off)')
-        else:
-            lines.append(f'    {spec.name}: {_yaml_value(value)}')
-    return '\n'.join(lines) + '\n'
-
-
-#: The parameter files in ``config/``: file name -> (preset, header comment).
-CONFIG_FILES: dict[str, tuple[str, str]] = {
-    'decomposer.yaml': (
-        'node',
-        """
-Default parameters of the mvbb_ros decomposer node (every one is declared with a
-description and range; `ros2 param describe /decomposer <name>` shows them).
-Use: ros2 run mvbb_ros decomposer --ros-args --params-file <this file>
-Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test checks it).
-""",
-    ),
-    'paper.yaml': (
-        'paper',
-        """
-The paper's algorithm (Huebner et al. 2008) in the decomposer node: no filters, min_points 10,
-no cap on the boxes; the same as `mvbb decompose --preset paper` and decompose() in Python.
-Use: ros2 run mvbb_ros decomposer --ros-args --params-file <this file>
-Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test checks it).
-""",
-    ),
-}
-
-
-def config_files() -> dict[str, str]:
-    """Return the text of every parameter file of ``config/``, by file name."""
-    return {
-        name: parameters_yaml(PRESETS[preset], header)
-        for name, (preset, header) in CONFIG_FILES.items()
-    }
