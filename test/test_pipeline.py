@@ -176,6 +176,7 @@ def test_the_crop_while_decoding_gives_what_the_filters_give_on_points():
         'completion',
         'decompose',
         'grasps',
+        'refine',
     }
 
 
