@@ -1,0 +1,87 @@
+"""
+The refinement's compiled kernels (surface normals, the pad gripper), without ROS or Open3D.
+
+`make compat` runs this file on numba 0.59 too; the refinement as a whole is tested in
+test_refine.py.
+"""
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mvbb_ros.geometry import surface
+from mvbb_ros.geometry.contacts import (
+    COL_CONTACT_WIDTH,
+    COL_VALID,
+    COL_WIDTH,
+    evaluate_lines,
+    GraspView,
+    RefinementSettings,
+)
+import numpy as np
+
+
+def _wavy_sheet(count: int, seed: int) -> np.ndarray:
+    """Return points on a gently curved sheet, 10 cm across (metres)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0.0, 0.1, size=(count, 2))
+    z = 0.01 * np.sin(40.0 * xy[:, 0]) * np.cos(30.0 * xy[:, 1])
+    return np.column_stack([xy, z])
+
+
+def _brute_force_normals(points: np.ndarray, radius: float) -> np.ndarray:
+    """Return surface._pca_normals' answer with every distance computed and numpy's eigh."""
+    normals = np.zeros_like(points)
+    distances = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    for i in range(len(points)):
+        for reach in (1, 2, surface.MAX_REACH):
+            near = points[distances[i] <= reach * radius]
+            if len(near) >= surface.MIN_NEIGHBOURS:
+                break
+        if len(near) < 4:
+            continue
+        offsets = near - points[i]
+        covariance = offsets.T @ offsets / len(near) - np.outer(offsets.mean(0), offsets.mean(0))
+        normals[i] = np.linalg.eigh(covariance)[1][:, 0]
+    return normals
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(20, 400), st.integers(0, 2**31 - 1), st.floats(0.004, 0.03))
+def test_normals_are_the_pca_of_every_neighbour_within_the_radius(count, seed, radius):
+    """The cell lookup (geometry/cells.py) finds exactly the neighbours a full search finds."""
+    points = _wavy_sheet(count, seed)
+    mine = surface._pca_normals(points, radius)
+    theirs = _brute_force_normals(points, radius)
+    found = np.linalg.norm(theirs, axis=1) > 0.0
+    assert np.array_equal(np.linalg.norm(mine, axis=1) > 0.0, found)
+    agreement = np.abs(np.einsum('ij,ij->i', mine[found], theirs[found]))
+    assert np.all(agreement > 1.0 - 1e-6)
+
+
+def test_normals_of_a_sphere_point_away_from_its_centre():
+    rng = np.random.default_rng(1)
+    directions = rng.normal(size=(3000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    model = surface.surface_model(0.05 * directions, cell=0.004)
+    radial = model.points / np.linalg.norm(model.points, axis=1, keepdims=True)
+    assert np.median(np.abs(np.einsum('ij,ij->i', model.normals, radial))) > 0.99
+
+
+def test_a_box_closed_across_its_faces_holds_with_its_width():
+    half = np.array([0.03, 0.02, 0.025])
+    axes = [np.linspace(-h, h, int(2 * h / 0.004) + 1) for h in half]
+    grid = np.stack(np.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3)
+    model = surface.surface_model(grid, cell=0.004, up=(0.0, 0.0, 1.0))
+    view = GraspView(gripper_max_width=0.1, standoff=0.05, up=np.array([0.0, 0.0, 1.0]))
+    rows = evaluate_lines(
+        model,
+        np.zeros((2, 3)),
+        np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]]),
+        np.array([[1.0, 0.0, 0.0], [math.cos(0.1), math.sin(0.1), 0.0]]),
+        RefinementSettings(enabled=True),
+        view,
+    )
+    assert np.all(rows[:, COL_VALID] == 1.0)
+    assert abs(rows[0, COL_CONTACT_WIDTH] - 2.0 * half[0]) <= 0.004
+    assert abs(rows[0, COL_WIDTH] - 2.0 * half[0]) <= 0.004
