@@ -571,7 +571,9 @@ class _Listener:
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE
         )
-        self.node.create_subscription(message_class, topic, self.clouds.append, qos)
+        self.subscription = self.node.create_subscription(
+            message_class, topic, self.clouds.append, qos
+        )
         self.node.create_subscription(
             Clock,
             '/clock',
@@ -734,6 +736,12 @@ def test_play_through_a_node_started_at_the_same_time_answers_every_cloud(tmp_pa
     )
     answers = _Listener(topic=OUTPUT_GRASPS, message_class=PoseArray)
     try:
+        # The node makes its outputs before it warms up and subscribes: once this listener is
+        # matched to them the node may still be starting, and no answer is lost on the way
+        # back (a volatile subscription misses what was published before it matched).
+        assert answers.spin_until(
+            lambda: answers.subscription.get_publisher_count() > 0, timeout_s=60.0
+        ), 'the node never offered its grasps'
         result = _play_to_the_end(bag, '--rate', '4')
         assert result.returncode == 0, result.stderr
         answered = {200 + k for k in range(count)}
