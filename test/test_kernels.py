@@ -109,3 +109,48 @@ def test_every_kernel_module_is_listed_and_warms():
         if re.search(r'^@(nb\.)?njit\(.*cache=True', path.read_text(), re.MULTILINE | re.DOTALL)
     }
     assert with_kernels <= set(kernels.KERNEL_MODULES), 'a module with cached kernels is unlisted'
+
+
+_PIPELINE_AFTER_WARM_UP = """
+import importlib, json, sys
+sys.path.insert(0, sys.argv[1])
+from mvbb_ros import kernels
+from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.settings import PipelineSettings
+from ros_graph import l_shape_points
+
+kernels.warm_up()
+def signatures():
+    return {
+        name: set(map(str, dispatcher.signatures))
+        for module in kernels.KERNEL_MODULES
+        for name, dispatcher in kernels._dispatchers(importlib.import_module(module))
+    }
+before = signatures()
+up = PipelineSettings().updated({'up_direction': [0.0, -0.8191520, -0.5735764]})
+for cloud in (l_shape_points(), segmented_object_cloud('mug', seed=1)):
+    for settings in (PipelineSettings(), up):
+        process_points(cloud, settings)
+after = signatures()
+new = {name: sorted(after[name] - before[name]) for name in after}
+print(json.dumps({name: types for name, types in new.items() if types}))
+"""
+
+
+def test_the_warm_up_compiles_what_the_pipeline_runs():
+    """
+    After :func:`kernels.warm_up` a cloud through the pipeline compiles nothing more.
+
+    numba compiles each new argument type apart (read-only arrays too): a kernel the warm-up
+    calls with other types than the pipeline compiles on the first cloud, for seconds (the CLI
+    then said "compiling geometry kernels" after set-up had warmed everything).
+    """
+    completed = subprocess.run(
+        [sys.executable, '-c', _PIPELINE_AFTER_WARM_UP, str(REPO_ROOT / 'test')],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=True,
+    )
+    assert json.loads(completed.stdout.strip().splitlines()[-1]) == {}

@@ -682,3 +682,7 @@ def warm_up() -> None:
     for points in (rng.normal(size=(30, 3)), rng.normal(size=(2, 3)), np.zeros((1, 3))):
         fit_box(points)
     fit_box(rng.normal(size=(200, 3)), coreset_min=100)
+    # The decomposition passes read-only points (numba compiles those apart): warm them too.
+    frozen = rng.normal(size=(30, 3))
+    frozen.flags.writeable = False
+    fit_box(frozen)

@@ -507,3 +507,8 @@ def warm_up() -> None:
     points = np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.2], [0.2, 1.0, 0.4], [0.9, 0.1, 1.0]])
     for measure in SPLIT_MEASURES:
         score_cuts(points, cells=4, measure=measure, min_thickness=0.1)
+    # As the decomposition calls it: read-only points and a Box's read-only centre and axes.
+    frozen = [points.copy(), points.mean(axis=0), np.eye(3)]
+    for array in frozen:
+        array.flags.writeable = False
+    frame_points_kernel(frozen[0], np.arange(len(points)), frozen[1], frozen[2])
