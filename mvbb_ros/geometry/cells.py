@@ -9,7 +9,12 @@ stays the same. O(N log N) to build, O(log N) per cell; no dictionary in compile
 :func:`cell_start` is our own binary search rather than ``np.searchsorted``: numba 0.68 loaded a
 cached kernel that called ``np.searchsorted`` beside another of our compiled helpers with wrong
 answers (the object clustering found 2,792 clusters in one L-shaped cloud; freshly compiled, 1).
-``test/test_kernel_cache.py`` runs the kernels compiled and then cached and compares.
+:func:`key_order` is our own merge sort rather than ``np.argsort`` for the same reason: numba
+builds its sorts from generated functions whose symbol names can repeat between a cached library
+and one compiled later in another process, and a kernel loaded beside the other can then run the
+wrong one (wrong grasp normals after ``surface.py`` alone was recompiled). No kernel of ours calls
+numba's generated sort or search functions. ``test/test_kernel_cache.py`` runs the kernels
+compiled and then cached and compares.
 """
 
 from __future__ import annotations
@@ -43,8 +48,41 @@ def cell_grid(
         for axis in range(3):
             cells[i, axis] = int((points[i, axis] - low[axis]) / width) + pad
         keys[i] = cell_key(cells[i, 0], cells[i, 1], cells[i, 2], span)
-    order = np.argsort(keys)
+    order = key_order(keys)
     return cells, span, order, keys[order]
+
+
+@nb.njit(cache=True)
+def key_order(keys: IndexArray) -> IndexArray:
+    """Return the stable order that sorts integer `keys` (a bottom-up merge sort, O(N log N))."""
+    count = keys.shape[0]
+    order = np.arange(count)
+    buffer = np.empty(count, dtype=np.int64)
+    run = 1
+    while run < count:
+        for start in range(0, count, 2 * run):
+            middle = min(start + run, count)
+            end = min(start + 2 * run, count)
+            left, right, out = start, middle, start
+            while left < middle and right < end:
+                if keys[order[right]] < keys[order[left]]:
+                    buffer[out] = order[right]
+                    right += 1
+                else:
+                    buffer[out] = order[left]
+                    left += 1
+                out += 1
+            while left < middle:
+                buffer[out] = order[left]
+                left += 1
+                out += 1
+            while right < end:
+                buffer[out] = order[right]
+                right += 1
+                out += 1
+        order, buffer = buffer, order
+        run *= 2
+    return order
 
 
 @nb.njit(cache=True, inline='always')

@@ -404,6 +404,26 @@ def _samples(
     )
 
 
+@nb.njit('int64[:](int64[:])', cache=True)
+def _ascending(best: IndexArray) -> IndexArray:
+    """Return the non-negative entries of `best` (distinct point indices) in ascending order."""
+    largest = -1
+    for index in best:
+        if index >= 0:
+            largest = max(largest, index)
+    chosen = np.zeros(largest + 1, dtype=np.bool_)
+    for index in best:
+        if index >= 0:
+            chosen[index] = True
+    kept = np.empty(chosen.sum(), dtype=np.int64)
+    count = 0
+    for index in range(largest + 1):
+        if chosen[index]:
+            kept[count] = index
+            count += 1
+    return kept
+
+
 @nb.njit('int64[:](float64[:, :], float64)', cache=True)
 def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     """
@@ -441,7 +461,7 @@ def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
                 if points[i, axis] < points[other, axis]:
                     best[key] = i
                 break
-    return np.sort(best[best >= 0])
+    return _ascending(best)
 
 
 def _rays(points: FloatArray, viewpoint: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -504,7 +524,7 @@ def _column_tops(
         cell = int((across[i] - low_a) / step) * depth + int((along[i] - low_b) / step)
         if best[cell] < 0 or height[i] > height[best[cell]]:
             best[cell] = i
-    return np.sort(best[best >= 0])
+    return _ascending(best)
 
 
 def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) -> FloatArray:
