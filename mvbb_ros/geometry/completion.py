@@ -34,7 +34,13 @@ from typing import get_args, Literal
 from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
-from mvbb_ros.geometry.raster import behind_others, MAX_RASTER_SIDE, view_raster, ViewRaster
+from mvbb_ros.geometry.raster import (
+    behind_others,
+    MAX_RASTER_SIDE,
+    pixel,
+    view_raster,
+    ViewRaster,
+)
 from mvbb_ros.geometry.rectangle import hull_2d_kernel
 import numba as nb
 import numpy as np
@@ -131,14 +137,7 @@ def _mirror_violations(
                 x = sample[i, 0] - 2.0 * height * n0 - viewpoint[0]
                 y = sample[i, 1] - 2.0 * height * n1 - viewpoint[1]
                 z = sample[i, 2] - 2.0 * height * n2 - viewpoint[2]
-                depth = frame[2, 0] * x + frame[2, 1] * y + frame[2, 2] * z
-                if depth <= 0.0:
-                    bad += 1
-                    continue
-                u = (frame[0, 0] * x + frame[0, 1] * y + frame[0, 2] * z) / depth
-                v = (frame[1, 0] * x + frame[1, 1] * y + frame[1, 2] * z) / depth
-                row = math.floor((u - origin[0]) / cell)
-                col = math.floor((v - origin[1]) / cell)
+                row, col = pixel(x, y, z, frame, origin, cell)
                 distance = math.sqrt(x * x + y * y + z * z)
                 if row < 0 or col < 0 or row >= rows or col >= cols:
                     bad += 1

@@ -138,6 +138,23 @@ def _oblique_ranges(
     return out
 
 
+@nb.njit(cache=True, inline='always')
+def pixel(
+    dx: float, dy: float, dz: float, frame: FloatArray, origin: FloatArray, cell: float
+) -> tuple[int, int]:
+    """
+    Return the raster cell (row, column) of the point at (dx, dy, dz) from the viewpoint.
+
+    (-1, -1) when the point is not in front of the sensor; callers check the raster's bounds.
+    """
+    depth = frame[2, 0] * dx + frame[2, 1] * dy + frame[2, 2] * dz
+    if depth <= 0.0:
+        return -1, -1
+    u = (frame[0, 0] * dx + frame[0, 1] * dy + frame[0, 2] * dz) / depth
+    v = (frame[1, 0] * dx + frame[1, 1] * dy + frame[1, 2] * dz) / depth
+    return math.floor((u - origin[0]) / cell), math.floor((v - origin[1]) / cell)
+
+
 @nb.njit(
     'boolean[:](float64[:, :], float64[:], float64[:, :], float64[:], float64, boolean[:, :], '
     'float64[:, :], float64[:, :], float64)',
@@ -161,13 +178,7 @@ def _hidden(
         dx = points[i, 0] - viewpoint[0]
         dy = points[i, 1] - viewpoint[1]
         dz = points[i, 2] - viewpoint[2]
-        depth = frame[2, 0] * dx + frame[2, 1] * dy + frame[2, 2] * dz
-        if depth <= 0.0:
-            continue
-        u = (frame[0, 0] * dx + frame[0, 1] * dy + frame[0, 2] * dz) / depth
-        v = (frame[1, 0] * dx + frame[1, 1] * dy + frame[1, 2] * dz) / depth
-        row = math.floor((u - origin[0]) / cell)
-        col = math.floor((v - origin[1]) / cell)
+        row, col = pixel(dx, dy, dz, frame, origin, cell)
         if 0 <= row < rows and 0 <= col < cols:
             distance = math.sqrt(dx * dx + dy * dy + dz * dz)
             if mask[row, col]:
@@ -200,13 +211,7 @@ def _cells(
         dy = points[i, 1] - viewpoint[1]
         dz = points[i, 2] - viewpoint[2]
         ranges[i] = math.sqrt(dx * dx + dy * dy + dz * dz)
-        depth = frame[2, 0] * dx + frame[2, 1] * dy + frame[2, 2] * dz
-        if depth <= 0.0:
-            continue
-        u = (frame[0, 0] * dx + frame[0, 1] * dy + frame[0, 2] * dz) / depth
-        v = (frame[1, 0] * dx + frame[1, 1] * dy + frame[1, 2] * dz) / depth
-        row = math.floor((u - origin[0]) / cell)
-        col = math.floor((v - origin[1]) / cell)
+        row, col = pixel(dx, dy, dz, frame, origin, cell)
         if 0 <= row < rows and 0 <= col < cols:
             index[i, 0] = row
             index[i, 1] = col
