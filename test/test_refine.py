@@ -94,7 +94,10 @@ def test_an_antipodal_grasp_across_a_box_holds_with_the_width_of_the_box(box):
     view = GraspView(gripper_max_width=0.14, standoff=0.05)
     straight = evaluate_lines(model, *_lines(rotation, center, 2, 0), ON, view)[0]
     assert straight[COL_VALID] == 1.0, 'closing across two parallel faces holds'
-    assert straight[COL_MARGIN] > 0.6, 'the contact line is nearly along both normals'
+    # The contact line is nearly along both normals: within 13 degrees (margin 0.5). A 2 cm pad
+    # on a 3 x 3 cm face sampled every 4 mm averages normals tilted by the face's edges: 12
+    # degrees at worst in 300 random boxes (margin 0.54), 1 degree at the median.
+    assert straight[COL_MARGIN] > 0.5, 'the contact line is nearly along both normals'
     # The width the object needs along the closing line: the box's extent (up to a cell).
     assert straight[COL_WIDTH] == pytest.approx(extents[0], abs=1.5 * CELL)
     assert straight[COL_CONTACT_WIDTH] == pytest.approx(extents[0], abs=1.5 * CELL)
@@ -105,21 +108,29 @@ def test_an_antipodal_grasp_across_a_box_holds_with_the_width_of_the_box(box):
 def test_a_grasp_that_slips_is_refused_and_one_inside_the_cones_scores_above_it(
     steep, gentle, seed
 ):
-    """Closing across a wedge: its faces make the half-angle with the contact line."""
+    """
+    Closing across a wedge: its faces make the half-angle with the contact line.
+
+    The line and two neighbours slid 5 mm along the wedge (as the refinement slides its lines):
+    on the 4 mm staircase of the surface model one line alone misses a gentle wedge's contact
+    in about 1 case in 100 (the two pads' contacts land apart along the wedge).
+    """
     rotation = Rotation.random(random_state=seed).as_matrix()
     center = np.array([0.0, 0.1, 0.6])
     view = GraspView(gripper_max_width=0.14, standoff=0.05)
-    lines = (center[None, :], -rotation[:, 2][None, :], rotation[:, 0][None, :])
+    shifts = np.array([-0.005, 0.0, 0.005])[:, None] * rotation[:, 1]
+    lines = (center + shifts, np.tile(-rotation[:, 2], (3, 1)), np.tile(rotation[:, 0], (3, 1)))
     rows = []
     for angle in (steep, gentle):
         points = wedge_surface(angle) @ rotation.T + center
-        rows.append(evaluate_lines(surface_model(points, cell=CELL), *lines, ON, view)[0])
+        rows.append(evaluate_lines(surface_model(points, cell=CELL), *lines, ON, view))
     slipping, holding = rows
-    assert not slipping[COL_VALID], f'{steep:.0f} degrees is outside a mu 0.5 cone (26.6)'
-    assert holding[COL_VALID] and holding[COL_QUALITY] > slipping[COL_QUALITY]
+    assert not slipping[:, COL_VALID].any(), f'{steep:.0f} degrees is outside a mu 0.5 cone (26.6)'
+    assert holding[:, COL_VALID].any()
+    assert holding[:, COL_QUALITY].max() > slipping[:, COL_QUALITY].max()
     wide_cone = RefinementSettings(enabled=True, friction=1.0)  # 45 degrees
     points = wedge_surface(steep) @ rotation.T + center
-    assert evaluate_lines(surface_model(points, cell=CELL), *lines, wide_cone, view)[0, 0]
+    assert evaluate_lines(surface_model(points, cell=CELL), *lines, wide_cone, view)[:, 0].any()
 
 
 def test_an_object_wider_than_the_opening_is_not_grasped_across():
@@ -170,6 +181,19 @@ def test_refined_grasps_hold_are_scored_in_0_1_and_their_widths_match(box, turn)
         assert grasp.approach[2] <= math.sin(math.radians(45.0)) + 1e-9
         tip = grasp.position + grasp.depth * grasp.approach
         assert tip[2] >= 0.005 - 1e-9
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_of_grasps_that_hold_alike_the_one_nearest_the_centre_ranks_first(seed):
+    """Along a bar every closing across it holds alike; the middle one twists it least."""
+    rotation = Rotation.random(random_state=seed).as_matrix()
+    center = np.array([0.05, -0.1, 0.6])
+    points = box_surface((0.24, 0.04, 0.04), rotation, center)
+    top = _refined(points).grasps[0]
+    closing_point = top.position + top.depth * np.asarray(top.approach)
+    along_bar = float((closing_point - center) @ rotation[:, 0])
+    assert abs(along_bar) <= 0.01, f'the top grasp closes {along_bar:+.3f} m from the middle'
 
 
 def test_no_approach_from_the_far_side_unless_allowed():

@@ -7,8 +7,9 @@ face centre; on a curved or partly seen object that centre rarely gives two anti
 candidates closing along every box axis (approaching along the other axes, from above and from
 the sensor), on each object's surface (:mod:`mvbb_ros.geometry.surface`) with the pad gripper
 of :mod:`mvbb_ros.geometry.contacts`; it keeps the feasible approaches (none from below, none
-from the far side), scores what holds by its quality over small pose errors with the task
-strategy's preference, and drops repeats. :func:`rescore_grasp` checks a previous frame's grasp
+from the far side), scores what holds by its quality over small pose errors and how near its
+contacts' line passes the object's centre, with the task strategy's preference, and drops
+repeats. :func:`rescore_grasp` checks a previous frame's grasp
 on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 ``docs/grasp_rules.md``.
 """
@@ -43,7 +44,7 @@ from numpy.typing import ArrayLike
 #: Slides of the grasp centre over the face, as fractions of the face's extent across the pads.
 SLIDES: tuple[float, ...] = (-0.3, -0.15, 0.0, 0.15, 0.3)
 #: Approaches per closing axis, evenly turned about it from the next box axis (4: the faces).
-APPROACHES_PER_AXIS = 8
+APPROACHES_PER_AXIS = 12
 #: Rolls of the closing direction about the approach, degrees.
 ROLLS: tuple[float, ...] = (-20.0, 0.0, 20.0)
 #: Two grasps are the same (the list keeps the better) within this share of the pad size ...
@@ -430,6 +431,8 @@ def rescore_grasp(
 #: slid across the pads by this share of the pad size, and rolled by this angle (degrees).
 ROBUST_SLIDE = 0.25
 ROBUST_ROLL_DEG = 10.0
+#: Weight of the centring (closing line near the object's centre) in a grasp's quality.
+CENTRING_WEIGHT = 0.3
 
 
 def _neighbours(
@@ -455,7 +458,10 @@ def _robust_quality(
     view: GraspView,
 ) -> FloatArray:
     """
-    Return each line's robust quality: the mean over it and its neighbours (0 where not held).
+    Return each line's quality over pose errors, weighed with its centring.
+
+    The contact quality is the mean over the line and its neighbours (0 where not held); the
+    centring (:func:`_centring`) weighs :data:`CENTRING_WEIGHT`.
 
     The neighbours (:func:`_neighbours`) are what a robot's pose error of a few millimetres and
     degrees makes of the grasp; a grasp at the edge of holding scores less than one in the
@@ -470,8 +476,38 @@ def _robust_quality(
         rows = evaluate_lines(model, *lines, settings, view)
         near = evaluate_lines(model, *_neighbours(*lines, settings.pad_size), settings, view)
         quality = np.concatenate([rows[:, COL_QUALITY], near[:, COL_QUALITY]])
-        total[mine] = quality.reshape(5, len(mine)).mean(axis=0)
+        held = quality.reshape(5, len(mine)).mean(axis=0)
+        centring = _centring(model, *lines, rows)
+        total[mine] = (1.0 - CENTRING_WEIGHT) * held + CENTRING_WEIGHT * centring
     return total
+
+
+def _centring(
+    model: SurfaceModel,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    rows: FloatArray,
+) -> FloatArray:
+    """
+    Return how near each closing line passes the object's centre, in [0, 1].
+
+    1 - the distance from the centroid of the surface model's points (observed and estimated)
+    to the line between the contacts, over the largest distance of a point from that centroid.
+    Gravity and a pushing finger twist the object about its centre of mass less the nearer
+    the contacts' line passes it (the torques in the grasp's wrench space).
+    """
+    if not len(model.points):
+        return np.zeros(len(origins))
+    centroid = model.points.mean(axis=0)
+    reach = float(np.linalg.norm(model.points - centroid, axis=1).max())
+    contacts = (
+        origins + rows[:, COL_TIP][:, None] * approaches + rows[:, COL_CENTER][:, None] * closings
+    )
+    offset = centroid - contacts
+    across = offset - np.einsum('ij,ij->i', offset, closings)[:, None] * closings
+    distance = np.linalg.norm(across, axis=1)
+    return np.clip(1.0 - distance / max(reach, 1e-12), 0.0, 1.0)
 
 
 def _score(
