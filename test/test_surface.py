@@ -19,6 +19,7 @@ from mvbb_ros.geometry.contacts import (
     RefinementSettings,
 )
 import numpy as np
+import pytest
 
 
 def _wavy_sheet(count: int, seed: int) -> np.ndarray:
@@ -42,7 +43,10 @@ def _brute_force_normals(points: np.ndarray, radius: float) -> np.ndarray:
             continue
         offsets = near - points[i]
         covariance = offsets.T @ offsets / len(near) - np.outer(offsets.mean(0), offsets.mean(0))
-        normals[i] = np.linalg.eigh(covariance)[1][:, 0]
+        values, vectors = np.linalg.eigh(covariance)
+        if values[0] > surface.EDGE_VARIATION * values.sum():
+            continue
+        normals[i] = vectors[:, 0]
     return normals
 
 
@@ -66,6 +70,28 @@ def test_normals_of_a_sphere_point_away_from_its_centre():
     model = surface.surface_model(0.05 * directions, cell=0.004)
     radial = model.points / np.linalg.norm(model.points, axis=1, keepdims=True)
     assert np.median(np.abs(np.einsum('ij,ij->i', model.normals, radial))) > 0.99
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.floats(0.02, 0.1), st.integers(0, 2**31 - 1))
+def test_a_corner_has_no_normal_and_a_curved_face_keeps_its_own(radius, seed):
+    """A blend of the faces' normals at a corner would make a pinch there look antipodal."""
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(4000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    sphere = surface.surface_model(radius * directions, cell=0.005)
+    assert np.all(np.linalg.norm(sphere.normals, axis=1) > 0.0), 'a sphere has no corner'
+    # Three faces of a cube meeting at the origin, sampled every millimetre up to 2 cm out.
+    side = np.linspace(0.0, 0.02, 21)
+    u, v = (a.ravel() for a in np.meshgrid(side, side))
+    zero = np.zeros_like(u)
+    faces = [np.column_stack(c) for c in ((zero, u, v), (u, zero, v), (u, v, zero))]
+    points = np.unique(np.concatenate(faces), axis=0)
+    normals = surface._pca_normals(points, 0.005)
+    apex = np.flatnonzero(np.all(points == 0.0, axis=1))
+    assert not np.any(normals[apex]), 'no normal where three faces meet'
+    middle = np.flatnonzero(np.all(np.isclose(points, [0.0, 0.015, 0.015]), axis=1))
+    assert abs(normals[middle[0], 0]) == pytest.approx(1.0), 'a face keeps its normal'
 
 
 def test_a_box_closed_across_its_faces_holds_with_its_width():
