@@ -5,8 +5,9 @@ Per-frame cost of the whole pipeline on one core, against Open3D's hand-written 
     .venv/bin/python benchmarks/pipeline.py --quick    # fewer frames, for a first look
 
 What runs, per frame, is what the node does for one cloud: :func:`mvbb_ros.pipeline.process.
-process_cloud` (decode, filter, objects, completion of the hidden side, decompose, grasps),
-:func:`mvbb_ros.ros.messages.output_messages` (message building) and publishing the messages on
+process_cloud` (decode, filter, objects, completion of the hidden side, decompose, grasps and
+their refinement on the points), :func:`mvbb_ros.ros.messages.output_messages` (message
+building) and publishing the messages on
 a real rclpy node (nobody subscribes, so this is serialization and the middleware's write). The
 decomposition is split into its box fits (every call of the minimum-volume box fit, timed by
 wrapping it) and the rest (the cut search of the splits). ``total`` is the wall clock of the
@@ -68,6 +69,7 @@ STEPS = (
     'fit',
     'splits',
     'grasps',
+    'refine',
     'messages',
     'publish',
 )
@@ -206,6 +208,7 @@ class Bench:
             'fit': fit_ms,
             'splits': max(timings.get('decompose', 0.0) - fit_ms, 0.0),
             'grasps': timings.get('grasps', 0.0),
+            'refine': timings.get('refine', 0.0),
             'messages': (published - built) * 1e3,
             'publish': (end - published) * 1e3,
             'total': (end - start) * 1e3,

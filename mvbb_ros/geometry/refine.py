@@ -180,20 +180,26 @@ def _box_candidates(
     rolls = np.deg2rad(np.array(ROLLS))
     slides = np.array(SLIDES)
     for index, box in enumerate(boxes):
-        for approach, closing in _frames(box, up, views[index]):
-            side = np.cross(approach, closing)
-            turned = np.cos(rolls)[:, None] * closing + np.sin(rolls)[:, None] * side
-            across = np.cross(approach, turned)  # (R, 3) the side axis of each roll
-            reach = np.abs(across @ box.rotation) @ box.extents  # extent across the pads
-            offsets = slides[None, :] * np.maximum(reach[:, None] - pad, 0.0)
-            origins = box.center + offsets[:, :, None] * across[:, None, :]  # (R, S, 3)
-            count = origins.shape[1]
-            out.add(
-                origins.reshape(-1, 3),
-                np.broadcast_to(approach, (len(rolls) * count, 3)),
-                np.repeat(turned, count, axis=0),
-                index,
-            )
+        pairs = _frames(box, up, views[index])
+        approaches = np.array([approach for approach, _ in pairs])  # (P, 3)
+        closings = np.array([closing for _, closing in pairs])
+        sides = np.cross(approaches, closings)
+        # (P, R, 3): each closing rolled about its approach, and the side axis of each roll.
+        turned = (
+            np.cos(rolls)[None, :, None] * closings[:, None, :]
+            + np.sin(rolls)[None, :, None] * sides[:, None, :]
+        )
+        across = np.cross(approaches[:, None, :], turned)
+        reach = np.abs(across @ box.rotation) @ box.extents  # (P, R) extent across the pads
+        offsets = slides * np.maximum(reach - pad, 0.0)[:, :, None]  # (P, R, S)
+        origins = box.center + offsets[..., None] * across[:, :, None, :]  # (P, R, S, 3)
+        count = origins.shape[1] * origins.shape[2]
+        out.add(
+            origins.reshape(-1, 3),
+            np.repeat(approaches, count, axis=0),
+            np.repeat(turned.reshape(-1, 3), len(slides), axis=0),
+            index,
+        )
     return out
 
 
@@ -244,16 +250,28 @@ def _feasible(
     return keep
 
 
-def _face_and_roll(box: Box, approach: FloatArray, closing: FloatArray) -> tuple[int, int]:
-    """Return the box face most opposed to `approach` and the closing's roll from its edge."""
-    normals = box.face_normals()
-    face = int(np.argmin(normals @ approach))
-    axis = face // 2
-    edge = box.rotation[:, (axis + 1) % 3]
-    approach_face = -normals[face]
-    turned = np.cross(approach_face, edge)
-    angle = math.degrees(math.atan2(float(closing @ turned), float(closing @ edge)))
-    return face, int(round(angle)) % 360
+def _faces_and_rolls(
+    boxes: Sequence[Box], box_index: IndexArray, approaches: FloatArray, closings: FloatArray
+) -> tuple[IndexArray, IndexArray]:
+    """Return each line's box face most opposed to its approach and its closing's roll (deg)."""
+    faces = np.zeros(len(box_index), dtype=np.intp)
+    rolls = np.zeros(len(box_index), dtype=np.intp)
+    for number in np.unique(box_index):
+        mine = np.flatnonzero(box_index == number)
+        box = boxes[int(number)]
+        normals = box.face_normals()
+        face = np.argmin(approaches[mine] @ normals.T, axis=1)
+        edges = box.rotation[:, (face // 2 + 1) % 3].T  # (M, 3)
+        turned = np.cross(-normals[face], edges)
+        angle = np.degrees(
+            np.arctan2(
+                np.einsum('ij,ij->i', closings[mine], turned),
+                np.einsum('ij,ij->i', closings[mine], edges),
+            )
+        )
+        faces[mine] = face
+        rolls[mine] = np.round(angle).astype(np.intp) % 360
+    return faces, rolls
 
 
 def _grasps(
@@ -270,6 +288,7 @@ def _grasps(
 ) -> list[Grasp]:
     """Return the grasps of evaluated rows (valid ones), in the given order."""
     quaternions = gripper_quaternions(approaches, closings, view.approach_axis)
+    faces, rolls = _faces_and_rolls(boxes, box_index, approaches, closings)
     out = []
     for i in range(len(rows)):
         row = rows[i]
@@ -279,7 +298,6 @@ def _grasps(
             + (row[COL_FIRST] - view.standoff) * approaches[i]
         )
         box = int(box_index[i])
-        face, roll = _face_and_roll(boxes[box], approaches[i], closings[i])
         width = min(row[COL_WIDTH] + settings.width_margin, view.gripper_max_width)
         out.append(
             Grasp(
@@ -289,8 +307,8 @@ def _grasps(
                 closing=_frozen(closings[i]),
                 width=float(width),
                 box_index=box,
-                face=face,
-                roll_deg=roll,
+                face=int(faces[i]),
+                roll_deg=int(rolls[i]),
                 score=float(scores[i]),
                 object_index=int(objects[i]),
                 depth=float(view.standoff + row[COL_DEPTH]),
