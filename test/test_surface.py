@@ -94,6 +94,17 @@ def test_a_corner_has_no_normal_and_a_curved_face_keeps_its_own(radius, seed):
     assert abs(normals[middle[0], 0]) == pytest.approx(1.0), 'a face keeps its normal'
 
 
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_sensor_noise_on_a_plane_is_not_an_edge(seed):
+    """1.5 mm of noise at a 5 mm radius varies like an edge there, not twice as wide."""
+    rng = np.random.default_rng(seed)
+    plane = np.column_stack([rng.uniform(-0.04, 0.04, (4000, 2)), rng.normal(0, 0.0015, 4000)])
+    normals = surface._pca_normals(plane, 0.005)
+    kept = np.linalg.norm(normals, axis=1) > 0.0
+    assert kept.mean() >= 0.95, f'{kept.mean():.0%} of a noisy plane keeps its normals'
+
+
 def test_a_box_closed_across_its_faces_holds_with_its_width():
     half = np.array([0.03, 0.02, 0.025])
     axes = [np.linspace(-h, h, int(2 * h / 0.004) + 1) for h in half]
