@@ -275,6 +275,13 @@ def test_batch_matches_single_and_prefilter_keeps_epsilon(cube):
     assert batch.status_counts()['missed'] == 1
 
 
+def test_an_empty_grasp_set_is_evaluated_as_empty(cube):
+    """A refined set can come out empty (nothing holds); its evaluation has no rows."""
+    empty = evaluate_grasps(cube, [], gripper=CUBE_GRIPPER)
+    assert empty.epsilon.shape == (0,) and empty.contacts.shape == (0, 2, 3)
+    assert not empty.force_closure.any() and sum(empty.status_counts().values()) == 0
+
+
 def test_spherical_grasps_match_the_paper_count_and_geometry():
     centre = np.array([1.0, 2.0, 3.0])
     sphere = spherical_grasps(centre, 2.0, 10)

@@ -200,6 +200,17 @@ def evaluate_grasps(
     torsion = 2.0 / 3.0 * friction * radius
     positions, approach, closing, side = grasp_axes(grasps)
     count = len(positions)
+    if count == 0:
+        nothing = np.zeros((0, 2, 3))
+        return GraspEvaluation(
+            epsilon=np.zeros(0),
+            volume=np.zeros(0),
+            status=np.zeros(0, dtype=np.int8),
+            contacts=nothing,
+            normals=nothing.copy(),
+            travel=np.zeros(0),
+            seconds=time.perf_counter() - start,
+        )
     half = hand.max_width / 2.0
 
     # 1-2. Approach: palm grid and fingertips, all along the approach direction.
