@@ -201,6 +201,8 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
             continue
         nx, ny, nz, variation = _covariance_eigen(*moments)
         if variation > EDGE_VARIATION:
+            if reach == MAX_REACH:  # no wider neighbourhood to ask: the same answer
+                continue
             wide = min(2 * reach, MAX_REACH)
             wider = _moments(points, cells, span, order, sorted_keys, i, wide, wide * radius)
             if _covariance_eigen(*wider)[3] > EDGE_VARIATION:
