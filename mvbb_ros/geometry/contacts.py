@@ -183,6 +183,10 @@ def _evaluate(
     band_u = np.empty(count)
     band_v = np.empty(count)
     band_k = np.empty(count, dtype=np.int64)
+    contact = np.empty(6)
+    normal = np.empty(6)
+    patch = np.empty(2)
+    support = np.empty(2)
     half = params[P_HALF]
     pad = params[P_PAD]
     cone = params[P_CONE]
@@ -208,28 +212,46 @@ def _evaluate(
             n += 1
         if n == 0:
             continue
+        # The first contact of a hand centred on the line: the same for every finger depth.
+        first_centred = inf
+        for j in range(n):
+            if abs(band_v[j]) <= half and band_u[j] < first_centred:
+                first_centred = band_u[j]
+        if first_centred == inf:
+            continue
         best = -1.0
         for di in range(depths.shape[0]):
             depth = depths[di]
             center = 0.0
-            first = inf
+            first = first_centred
             tip = inf
             low = inf
             high = -inf
-            for _ in range(4):
-                first = inf
-                for j in range(n):
-                    if abs(band_v[j] - center) <= half and band_u[j] < first:
-                        first = band_u[j]
-                if first == inf:
-                    break
+            pad_low = inf
+            pad_high = -inf
+            for iteration in range(4):
+                if iteration > 0:
+                    first = inf
+                    for j in range(n):
+                        if abs(band_v[j] - center) <= half and band_u[j] < first:
+                            first = band_u[j]
+                    if first == inf:
+                        break
                 tip = first + depth
+                # What the fingers pass and, for the tip the loop ends with, what the pads reach.
                 low = inf
                 high = -inf
+                pad_low = inf
+                pad_high = -inf
                 for j in range(n):
-                    if band_u[j] <= tip:
-                        low = min(low, band_v[j])
-                        high = max(high, band_v[j])
+                    u = band_u[j]
+                    if u <= tip:
+                        v = band_v[j]
+                        low = min(low, v)
+                        high = max(high, v)
+                        if u >= tip - pad:
+                            pad_low = min(pad_low, v)
+                            pad_high = max(pad_high, v)
                 moved = 0.5 * (low + high) - center
                 center += moved
                 if abs(moved) <= 1e-12 * (1.0 + half):
@@ -241,18 +263,12 @@ def _evaluate(
             if clearance < params[P_MIN_CLEAR]:
                 continue
             # Contacts: where each pad (the finger's last `pad` before the tip) first touches.
-            pad_low = inf
-            pad_high = -inf
-            for j in range(n):
-                if tip - pad <= band_u[j] <= tip:
-                    pad_low = min(pad_low, band_v[j])
-                    pad_high = max(pad_high, band_v[j])
             if pad_high - pad_low < params[P_MIN_WIDTH]:
                 continue
-            contact = np.zeros(6)
-            normal = np.zeros(6)
-            patch = np.zeros(2)
-            support = np.zeros(2)
+            contact[:] = 0.0
+            normal[:] = 0.0
+            patch[:] = 0.0
+            support[:] = 0.0
             for j in range(n):
                 u = band_u[j]
                 if u < tip - pad or u > tip:

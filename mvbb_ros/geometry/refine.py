@@ -421,6 +421,7 @@ def rescore_grasp(
         origin[None, :],
         approach[None, :],
         closing[None, :],
+        row[None, :],
         settings,
         view,
     )[0]
@@ -472,11 +473,14 @@ def _robust_quality(
     origins: FloatArray,
     approaches: FloatArray,
     closings: FloatArray,
+    rows: FloatArray,
     settings: RefinementSettings,
     view: GraspView,
 ) -> FloatArray:
     """
     Return each line's quality over pose errors, weighed with its centring.
+
+    `rows` are the lines' own evaluations (:func:`evaluate_lines`).
 
     The contact quality is the mean over the line and its neighbours (0 where not held); the
     centring (:func:`_centring`) weighs :data:`CENTRING_WEIGHT`.
@@ -491,11 +495,10 @@ def _robust_quality(
         if not len(mine):
             continue
         lines = (origins[mine], approaches[mine], closings[mine])
-        rows = evaluate_lines(model, *lines, settings, view)
         near = evaluate_lines(model, *_neighbours(*lines, settings.pad_size), settings, view)
-        quality = np.concatenate([rows[:, COL_QUALITY], near[:, COL_QUALITY]])
+        quality = np.concatenate([rows[mine, COL_QUALITY], near[:, COL_QUALITY]])
         held = quality.reshape(5, len(mine)).mean(axis=0)
-        centring = _centring(model, *lines, rows)
+        centring = _centring(model, *lines, rows[mine])
         total[mine] = (1.0 - CENTRING_WEIGHT) * held + CENTRING_WEIGHT * centring
     return total
 
@@ -587,7 +590,14 @@ def refine_grasps(
             )
     valid = np.flatnonzero(rows[:, COL_VALID] > 0.0)
     quality = _robust_quality(
-        models, objects[valid], origins[valid], approaches[valid], closings[valid], settings, view
+        models,
+        objects[valid],
+        origins[valid],
+        approaches[valid],
+        closings[valid],
+        rows[valid],
+        settings,
+        view,
     )
     rows[valid, COL_QUALITY] = quality
     preference = _box_preferences(boxes, view)[box_index[valid]]
