@@ -180,6 +180,10 @@ def _evaluate(
     """
     count = points.shape[0]
     out = np.zeros((origins.shape[0], EVALUATION_COLUMNS))
+    xs = np.ascontiguousarray(points[:, 0])
+    ys = np.ascontiguousarray(points[:, 1])
+    zs = np.ascontiguousarray(points[:, 2])
+    across = np.empty(count)
     band_u = np.empty(count)
     band_v = np.empty(count)
     band_k = np.empty(count, dtype=np.int64)
@@ -198,14 +202,16 @@ def _evaluate(
         s0 = a[1] * c[2] - a[2] * c[1]
         s1 = a[2] * c[0] - a[0] * c[2]
         s2 = a[0] * c[1] - a[1] * c[0]
+        # The distances across first (a loop the compiler vectorizes), then the band.
+        for k in range(count):
+            across[k] = (xs[k] - o[0]) * s0 + (ys[k] - o[1]) * s1 + (zs[k] - o[2]) * s2
         n = 0
         for k in range(count):
-            dx = points[k, 0] - o[0]
-            dy = points[k, 1] - o[1]
-            dz = points[k, 2] - o[2]
-            w = dx * s0 + dy * s1 + dz * s2
-            if abs(w) > pad / 2.0:
+            if abs(across[k]) > pad / 2.0:
                 continue
+            dx = xs[k] - o[0]
+            dy = ys[k] - o[1]
+            dz = zs[k] - o[2]
             band_u[n] = dx * a[0] + dy * a[1] + dz * a[2]
             band_v[n] = dx * c[0] + dy * c[1] + dz * c[2]
             band_k[n] = k
