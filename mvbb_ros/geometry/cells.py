@@ -4,7 +4,9 @@ Cubic cells for neighbour searches in compiled kernels: bin points, then find a 
 A kernel that needs "the points near this one" bins the cloud once with :func:`cell_grid`
 (cells one `width` wide, keyed by one integer per cell, keys sorted) and looks up any cell's
 points with :func:`cell_start`: a binary search in the sorted keys, then a walk while the key
-stays the same. O(N log N) to build, O(log N) per cell; no dictionary in compiled code.
+stays the same. O(N log N) to build, O(log N) per cell; no dictionary in compiled code. Cells
+next to each other along z have consecutive keys (:func:`cell_key`), so the points of a column
+of cells follow each other in the sorted order: one search finds them all.
 
 :func:`cell_start` is our own binary search rather than ``np.searchsorted``: numba 0.68 loaded a
 cached kernel that called ``np.searchsorted`` beside another of our compiled helpers with wrong

@@ -55,22 +55,22 @@ def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
     for i in range(count):
         for dx in range(-1, 2):
             for dy in range(-1, 2):
-                for dz in range(-1, 2):
-                    key = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] + dz, span)
-                    for k in range(cell_start(sorted_keys, key), count):
-                        if sorted_keys[k] != key:
-                            break
-                        j = order[k]
-                        if j <= i:
-                            continue
-                        distance = 0.0
-                        for axis in range(3):
-                            delta = points[i, axis] - points[j, axis]
-                            distance += delta * delta
-                        if distance <= squared:
-                            first, second = _root(parent, i), _root(parent, j)
-                            if first != second:
-                                parent[max(first, second)] = min(first, second)
+                # The three cells along z: consecutive keys, one search (see cells.py).
+                lowest = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] - 1, span)
+                for k in range(cell_start(sorted_keys, lowest), count):
+                    if sorted_keys[k] > lowest + 2:
+                        break
+                    j = order[k]
+                    if j <= i:
+                        continue
+                    distance = 0.0
+                    for axis in range(3):
+                        delta = points[i, axis] - points[j, axis]
+                        distance += delta * delta
+                    if distance <= squared:
+                        first, second = _root(parent, i), _root(parent, j)
+                        if first != second:
+                            parent[max(first, second)] = min(first, second)
     labels = np.empty(count, dtype=np.int64)
     names = np.full(count, -1, dtype=np.int64)
     next_label = 0

@@ -124,28 +124,28 @@ def _moments(
     count = points.shape[0]
     for dx in range(-reach, reach + 1):
         for dy in range(-reach, reach + 1):
-            for dz in range(-reach, reach + 1):
-                key = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] + dz, span)
-                start = cell_start(sorted_keys, key)
-                for k in range(start, count):
-                    if sorted_keys[k] != key:
-                        break
-                    j = order[k]
-                    x = points[j, 0] - points[i, 0]
-                    y = points[j, 1] - points[i, 1]
-                    z = points[j, 2] - points[i, 2]
-                    if x * x + y * y + z * z > squared:
-                        continue
-                    n += 1
-                    sx += x
-                    sy += y
-                    sz += z
-                    sxx += x * x
-                    sxy += x * y
-                    sxz += x * z
-                    syy += y * y
-                    syz += y * z
-                    szz += z * z
+            # The column of cells along z: consecutive keys, one search (see cells.py).
+            first = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] - reach, span)
+            last = first + 2 * reach
+            for k in range(cell_start(sorted_keys, first), count):
+                if sorted_keys[k] > last:
+                    break
+                j = order[k]
+                x = points[j, 0] - points[i, 0]
+                y = points[j, 1] - points[i, 1]
+                z = points[j, 2] - points[i, 2]
+                if x * x + y * y + z * z > squared:
+                    continue
+                n += 1
+                sx += x
+                sy += y
+                sz += z
+                sxx += x * x
+                sxy += x * y
+                sxz += x * z
+                syy += y * y
+                syz += y * z
+                szz += z * z
     return n, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
 
