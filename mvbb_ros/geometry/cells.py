@@ -5,8 +5,8 @@ A kernel that needs "the points near this one" bins the cloud once with :func:`c
 (cells one `width` wide, keyed by one integer per cell, keys sorted) and looks up any cell's
 points with :func:`cell_start`: a binary search in the sorted keys, then a walk while the key
 stays the same. O(N log N) to build, O(log N) per cell; no dictionary in compiled code. Cells
-next to each other along z have consecutive keys (:func:`cell_key`), so the points of a column
-of cells follow each other in the sorted order: one search finds them all.
+next to each other along z have consecutive keys (:func:`column_keys`), so the points of a
+column of cells follow each other in the sorted order: one search finds them all.
 
 :func:`cell_start` is our own binary search rather than ``np.searchsorted``: numba 0.68 loaded a
 cached kernel that called ``np.searchsorted`` beside another of our compiled helpers with wrong
@@ -91,6 +91,18 @@ def key_order(keys: IndexArray) -> IndexArray:
 def cell_key(x: int, y: int, z: int, span: IndexArray) -> int:
     """Return the key of cell (x, y, z) in a grid of `span` cells."""
     return (x * span[1] + y) * span[2] + z
+
+
+@nb.njit(cache=True, inline='always')
+def column_keys(x: int, y: int, z: int, reach: int, span: IndexArray) -> tuple[int, int]:
+    """
+    Return the first and last key of cells (x, y, z - reach) .. (x, y, z + reach).
+
+    They are consecutive, so their points are the sorted run from :func:`cell_start` of the
+    first key while the key is at most the last.
+    """
+    first = cell_key(x, y, z - reach, span)
+    return first, first + 2 * reach
 
 
 @nb.njit(cache=True)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import itertools
 
 from mvbb_ros.arrays import FloatArray, IndexArray
-from mvbb_ros.geometry.cells import cell_grid, cell_key, cell_start
+from mvbb_ros.geometry.cells import cell_grid, cell_start, column_keys
 from mvbb_ros.geometry.raster import view_raster
 import numba as nb
 import numpy as np
@@ -55,10 +55,9 @@ def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
     for i in range(count):
         for dx in range(-1, 2):
             for dy in range(-1, 2):
-                # The three cells along z: consecutive keys, one search (see cells.py).
-                lowest = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] - 1, span)
-                for k in range(cell_start(sorted_keys, lowest), count):
-                    if sorted_keys[k] > lowest + 2:
+                first, last = column_keys(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2], 1, span)
+                for k in range(cell_start(sorted_keys, first), count):
+                    if sorted_keys[k] > last:
                         break
                     j = order[k]
                     if j <= i:

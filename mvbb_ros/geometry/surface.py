@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import math
 
 from mvbb_ros.arrays import FloatArray
-from mvbb_ros.geometry.cells import cell_grid, cell_key, cell_start
+from mvbb_ros.geometry.cells import cell_grid, cell_start, column_keys
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -124,9 +124,7 @@ def _moments(
     count = points.shape[0]
     for dx in range(-reach, reach + 1):
         for dy in range(-reach, reach + 1):
-            # The column of cells along z: consecutive keys, one search (see cells.py).
-            first = cell_key(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2] - reach, span)
-            last = first + 2 * reach
+            first, last = column_keys(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2], reach, span)
             for k in range(cell_start(sorted_keys, first), count):
                 if sorted_keys[k] > last:
                     break
