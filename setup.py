@@ -27,7 +27,7 @@ setup(
     extras_require={'test': ['pytest', 'hypothesis']},
     entry_points={
         'console_scripts': [
-            'decomposer = mvbb_ros.ros.node:main',
+            'decomposer = mvbb_ros.ros.decomposer:main',
             'mvbb = mvbb_ros.cli.main:main',
         ],
     },

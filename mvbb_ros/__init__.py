@@ -20,18 +20,25 @@ from __future__ import annotations
 import importlib
 from typing import Any, TYPE_CHECKING
 
-# First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it,
-# and compile_time clocks the compiles of the kernels that the imports below compile.
-from mvbb_ros import compile_time, kernel_cache  # noqa: F401
-from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition import decompose, Decomposition
-from mvbb_ros.geometry.fit import minimum_bounding_box
-from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.pipeline.settings import PipelineSettings
-
 if TYPE_CHECKING:
+    from mvbb_ros.geometry.box import Box
+    from mvbb_ros.geometry.decomposition import decompose, Decomposition
+    from mvbb_ros.geometry.fit import minimum_bounding_box
+    from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
     from mvbb_ros.pipeline.process import process_points
+    from mvbb_ros.pipeline.settings import PipelineSettings
 
+#: Each public name and the module that defines it, imported on first use.
+_EXPORTS: dict[str, str] = {
+    'Box': 'mvbb_ros.geometry.box',
+    'Decomposition': 'mvbb_ros.geometry.decomposition',
+    'Grasp': 'mvbb_ros.geometry.grasps',
+    'PipelineSettings': 'mvbb_ros.pipeline.settings',
+    'decompose': 'mvbb_ros.geometry.decomposition',
+    'grasp_hypotheses': 'mvbb_ros.geometry.grasps',
+    'minimum_bounding_box': 'mvbb_ros.geometry.fit',
+    'process_points': 'mvbb_ros.pipeline.process',
+}
 __all__ = [
     'Box',
     'Decomposition',
@@ -47,11 +54,19 @@ __version__ = '0.1.0'
 
 def __getattr__(name: str) -> Any:
     """
-    Import :func:`process_points` on first use.
+    Import a public name's module on first use.
 
-    The pipeline loads its compiled kernels (from numba's cache, or compiling them), and every
-    import of a submodule runs this package first: the command line's help must not pay for it.
+    Every import of a submodule runs this package first: the node's executable joins the ROS
+    graph before the geometry loads (:mod:`mvbb_ros.ros.decomposer`), and the command line's
+    help does not pay for numba and the kernels.
     """
-    if name == 'process_points':
-        return importlib.import_module('mvbb_ros.pipeline.process').process_points
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -1,12 +1,12 @@
 """
-A clock of numba's compiles in this process, started when the package is first imported.
+A clock of numba's compiles in this process, started before the first kernel module loads.
 
 Kernels with explicit signatures compile (or load from numba's cache) when their module is
 imported, so the time a first run spends compiling is not the time of any one call: this clock
 adds up every compile (numba's ``numba:compile`` events, the outermost ones only, so a kernel
 compiled inside another is not counted twice). Loading from the cache is no compile: on a warm
-start it stays at zero. ``mvbb_ros/__init__.py`` imports this module before anything that
-compiles; :func:`mvbb_ros.kernels.warm_up` reports it.
+start it stays at zero. The packages that hold kernels (``geometry`` and ``pipeline``)
+import this module before anything that compiles; :func:`mvbb_ros.kernels.warm_up` reports it.
 """
 
 from __future__ import annotations

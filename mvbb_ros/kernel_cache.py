@@ -12,9 +12,10 @@ through other modules of the package (:func:`dependency_digest`). So an edit of 
 recompiles the kernels of ``hull.py``, ``search.py``, ``fit.py`` and of the modules that import
 them, and nothing else.
 
-``mvbb_ros/__init__.py`` imports this module before anything else, so the wrapper is in place
-before any kernel of the package is defined (numba picks a kernel's locator when it is
-decorated); :mod:`mvbb_ros.kernels` lists and warms the kernels.
+The packages that hold kernels (``mvbb_ros/geometry/__init__.py`` and
+``mvbb_ros/pipeline/__init__.py``) import this module before any of their modules, so the
+wrapper is in place before any kernel of the package is defined (numba picks a kernel's locator
+when it is decorated); :mod:`mvbb_ros.kernels` lists and warms the kernels.
 """
 
 from __future__ import annotations

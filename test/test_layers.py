@@ -42,12 +42,16 @@ def ros_side(name):
 def heavy(name):
     return name.split('.')[0] in ('open3d', 'matplotlib')
 
+def compiled(name):
+    return name.split('.')[0] == 'numba' or name.startswith('mvbb_ros.geometry')
+
 report = {}
 for module in sys.argv[1:]:
     importlib.import_module(module)
     report[module] = {
         'ros': sorted({m.split('.')[0] for m in sys.modules if ros_side(m)}),
         'heavy': sorted({m.split('.')[0] for m in sys.modules if heavy(m)}),
+        'compiled': sorted({m for m in sys.modules if compiled(m)}),
     }
 print(json.dumps(report))
 """
@@ -93,6 +97,18 @@ def test_the_node_and_the_pipeline_load_no_heavy_layer():
     report = _import_in_fresh_interpreter(['mvbb_ros.pipeline.process', 'mvbb_ros.ros.node'])
     for module, seen in report.items():
         assert not seen['heavy'], f'{module} loaded {seen["heavy"]}'
+
+
+def test_the_package_and_the_node_executable_load_no_kernels():
+    """
+    ``import mvbb_ros`` and the ``decomposer`` executable's module load no numba, no geometry.
+
+    The package loads its names on first use, and the executable joins the ROS graph before the
+    geometry loads (``mvbb_ros/ros/decomposer.py``).
+    """
+    report = _import_in_fresh_interpreter(['mvbb_ros', 'mvbb_ros.ros.decomposer'])
+    for module, seen in report.items():
+        assert not seen['compiled'] and not seen['heavy'], f'{module} loaded {seen}'
 
 
 def test_every_module_is_imported_by_the_layer_test():

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import SetParameters
+import rclpy
+from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from ros_graph import Graph, l_shape_points
@@ -192,6 +194,56 @@ def test_installed_decomposer_exits_zero_on_sigint():
     finally:
         if process.poll() is None:
             process.kill()
+
+
+def test_installed_decomposer_takes_a_remapped_name_and_leaves_no_startup_node():
+    """
+    The start-up node takes none of the command line's remappings and is gone once up.
+
+    The executable creates it (and so the DDS participant) before loading the geometry.
+    """
+    from mvbb_ros.ros.decomposer import STARTUP_NODE
+
+    context = Context()
+    rclpy.init(context=context)
+    observer = rclpy.create_node('observer', context=context)
+    process = subprocess.Popen(
+        [
+            str(_console_script('decomposer')),
+            '--ros-args',
+            '-r',
+            '__node:=renamed_decomposer',
+            '-r',
+            '__ns:=/arm',
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED='1'),
+    )
+    try:
+        subscribed = False
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and not subscribed:
+            subscribed = bool(observer.get_subscriptions_info_by_topic('/arm/cloud_in'))
+            time.sleep(0.05)
+        assert subscribed, 'the node never subscribed to /arm/cloud_in'
+        names: list[tuple[str, str]] = []
+        for _ in range(20):  # the start-up node's departure reaches the graph shortly after
+            names = observer.get_node_names_and_namespaces()
+            if all(name != STARTUP_NODE for name, _ in names):
+                break
+            time.sleep(0.1)
+        assert ('renamed_decomposer', '/arm') in names
+        assert [name for name, _ in names].count('renamed_decomposer') == 1
+        assert all(name != STARTUP_NODE for name, _ in names), names
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+        observer.destroy_node()
+        rclpy.try_shutdown(context=context)
 
 
 def test_bad_parameter_file_fails_loudly(tmp_path):

@@ -256,7 +256,7 @@ def _run(
     print(f'[1/5] starting the node: decomposer {" ".join(node_args)}  (log: {node_log})')
     with open(node_log, 'w') as log:
         node = children.start(
-            _executable('decomposer', 'mvbb_ros.ros.node') + node_args,
+            _executable('decomposer', 'mvbb_ros.ros.decomposer') + node_args,
             stdout=log,
             stderr=subprocess.STDOUT,
         )

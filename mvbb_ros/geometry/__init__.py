@@ -9,3 +9,7 @@ split measure theta), :mod:`~mvbb_ros.geometry.decomposition` (the fit-and-split
 :mod:`~mvbb_ros.geometry.grasps` (face-approach grasps). Every default here is the paper's;
 ``docs/architecture.md`` says where the node's defaults differ.
 """
+
+# First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it,
+# and compile_time clocks the compiles of the kernels that this package's modules compile.
+from mvbb_ros import compile_time, kernel_cache  # noqa: F401

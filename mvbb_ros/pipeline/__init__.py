@@ -7,3 +7,7 @@ share it: :mod:`~mvbb_ros.pipeline.decode` (PointCloud2 -> points),
 (the per-cloud function) and :mod:`~mvbb_ros.pipeline.settings` (every tunable, its default and
 range). Importing this package imports none of them (the filters load Open3D).
 """
+
+# First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it,
+# and compile_time clocks the compiles of the kernels that this package's modules compile.
+from mvbb_ros import compile_time, kernel_cache  # noqa: F401

@@ -30,9 +30,7 @@ from __future__ import annotations
 
 import array
 from collections.abc import Sequence
-import gc
 import math
-import sys
 import time
 import traceback
 from typing import Any
@@ -60,11 +58,8 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -464,42 +459,3 @@ class DecomposerNode(Node):
             )
         ]
         self._diagnostics_pub.publish(array)
-
-
-def main(args: Sequence[str] | None = None) -> int:
-    """Run the node until SIGINT or shutdown; return 0 on a clean exit, 1 on bad parameters."""
-    rclpy.init(args=None if args is None else list(args))
-    node = None
-    try:
-        node = DecomposerNode()
-        # What start-up loaded (numba, scipy, rclpy: some 140k objects) stays for good; frozen,
-        # the garbage collector's full passes skip it instead of taking 100-300 ms of a cloud.
-        gc.freeze()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (
-        UnknownParameterError,
-        InvalidParameterValueException,
-        InvalidParameterTypeException,
-    ) as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(f'bad parameters: {error}')
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        _shutdown()
-    return 0
-
-
-def _shutdown() -> None:
-    """Shut rclpy down unless SIGINT's handler did so first (it runs on its own thread)."""
-    try:
-        rclpy.try_shutdown()
-    except rclpy_implementation.RCLError as error:
-        if 'already called' not in str(error):
-            raise
-
-
-if __name__ == '__main__':
-    sys.exit(main())

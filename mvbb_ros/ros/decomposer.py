@@ -1,0 +1,77 @@
+"""
+The ``decomposer`` executable: join the ROS graph, then load the geometry and run the node.
+
+DDS discovery runs in the middleware's threads from the moment the process's participant
+exists, which in rclpy is when the context's first node is created. Importing the node's
+module loads numba, the kernels and the pipeline (about 1 s); a participant created after that
+and a subscription created at once race the discovery of the endpoint on this machine: the
+peers see the subscription at once or, when the first announcements are missed, 2.5 s later.
+So a hidden start-up node (:data:`STARTUP_NODE`) creates the participant first, discovery is
+done while the module loads, and the node's subscription is announced to peers that already
+know the participant (measured in ``docs/performance.md``, start-up).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+import gc
+import sys
+
+import rclpy
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation
+
+#: The node that creates the participant before the module loads: hidden (a leading
+#: underscore), without the command line's remappings and parameters, rosout or services.
+STARTUP_NODE = '_decomposer_startup'
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run the node until SIGINT or shutdown; return 0 on a clean exit, 1 on bad parameters."""
+    rclpy.init(args=None if args is None else list(args))
+    node = None
+    try:
+        startup = rclpy.create_node(
+            STARTUP_NODE,
+            use_global_arguments=False,
+            enable_rosout=False,
+            start_parameter_services=False,
+        )
+        from mvbb_ros.ros.node import DecomposerNode, NODE_NAME, UnknownParameterError
+
+        try:
+            node = DecomposerNode()
+        except (
+            UnknownParameterError,
+            InvalidParameterValueException,
+            InvalidParameterTypeException,
+        ) as error:
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'bad parameters: {error}')
+            return 1
+        finally:
+            startup.destroy_node()
+        # What start-up loaded (numba, scipy, rclpy: some 140k objects) stays for good; frozen,
+        # the garbage collector's full passes skip it instead of taking 100-300 ms of a cloud.
+        gc.freeze()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        _shutdown()
+    return 0
+
+
+def _shutdown() -> None:
+    """Shut rclpy down unless SIGINT's handler did so first (it runs on its own thread)."""
+    try:
+        rclpy.try_shutdown()
+    except rclpy_implementation.RCLError as error:
+        if 'already called' not in str(error):
+            raise
+
+
+if __name__ == '__main__':
+    sys.exit(main())
