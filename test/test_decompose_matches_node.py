@@ -66,3 +66,19 @@ def test_decompose_writes_the_boxes_the_node_publishes(tmp_path, arguments, para
     for mine, theirs in zip(written, published, strict=True):
         np.testing.assert_allclose(mine, theirs, rtol=1e-12)
         assert float(np.prod(mine)) == pytest.approx(float(np.prod(theirs)), rel=1e-12)
+
+
+def test_decompose_says_why_a_cloud_has_boxes_but_no_grasps(tmp_path, capsys):
+    """A 20 cm cube: every face is wider than the gripper opens (0.08 m); the report says so."""
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-0.1, 0.1, size=(6000, 3))
+    axis, side = rng.integers(0, 3, len(points)), rng.choice([-0.1, 0.1], len(points))
+    points[np.arange(len(points)), axis] = side
+    cloud_file = tmp_path / 'cube.npy'
+    np.save(cloud_file, (points + [0.0, 0.0, 0.8]).astype(np.float32))
+    assert main(['decompose', str(cloud_file)]) == 0
+    report = capsys.readouterr().out
+    assert '0 grasp hypotheses' in report
+    assert 'no grasps: 1 boxes, 0 grasps: gripper_max_width' in report
+    assert main(['decompose', str(cloud_file), '--gripper-max-width', '0.3']) == 0
+    assert 'no grasps' not in capsys.readouterr().out

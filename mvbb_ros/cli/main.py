@@ -219,6 +219,8 @@ def _format_vector(values: Iterable[float]) -> str:
 
 def print_report(result: PipelineResult, seconds: float, settings: PipelineSettings) -> None:
     """Print the counts, the leaf boxes (by object) and the best grasps as plain-text tables."""
+    from mvbb_ros.pipeline.explain import empty_grasps_note
+
     grasps, counts, leaves = result.grasps, result.counts, result.leaves
     dropped = sum(len(item.decomposition.dropped_point_indices) for item in result.objects)
     print(
@@ -236,6 +238,9 @@ def print_report(result: PipelineResult, seconds: float, settings: PipelineSetti
             f'{_format_vector(box.extents)}  {box.volume:11.4g}'
         )
     print(f'{len(grasps)} grasp hypotheses (best first)')
+    note = '' if grasps else empty_grasps_note(result, settings)
+    if note:
+        print(f'no grasps: {note}')
     if grasps:
         print(
             f'{"rank":>4} {"obj":>3} {"box":>3} {"face":>4}  {"position":^29}  {"width":>8} '
