@@ -25,7 +25,7 @@ from typing import Any, get_args, Literal
 from mvbb_ros.arrays import IndexArray
 from mvbb_ros.geometry import split as splitting
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import fit_part, minimum_bounding_box
+from mvbb_ros.geometry.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -491,12 +491,13 @@ def decompose(
     recorded, but its parts are not fitted (its ``gain`` is that lower bound). The result is
     the same as with every fit made (the ``'gain'`` order fits every split it ranks).
 
-    Part fits: the root gets the full default search (:func:`mvbb_ros.geometry.fit.fit_box`), each
-    part the lighter :data:`mvbb_ros.geometry.fit.PART_SEARCH` (half the candidate axes and
+    Part fits: the root gets the full default search (:func:`mvbb_ros.geometry.fit.fit_box`,
+    hulled on its grid coreset from 16,384 points on: :data:`~mvbb_ros.geometry.fit.ROOT_SEARCH`),
+    each part the lighter :data:`mvbb_ros.geometry.fit.PART_SEARCH` (half the candidate axes and
     starts, no grid rounds, parts of 1,000 points or more hulled on a grid coreset). Against
     the full search on the shared scans and models (``benchmarks/decompose.py --parts``): part
-    volumes median 1.0000 x, 99th percentile 1.010 x; box counts move on 2 of 39 clouds at
-    t = 0.90, 1 at 0.94 and 23 at 0.98, where a part's volume a fraction of a percent off flips
+    volumes median 1.0000 x, 99th percentile 1.009 x; box counts move on 1 of 39 clouds at
+    t = 0.90, 2 at 0.94 and 22 at 0.98, where a part's volume a fraction of a percent off flips
     decisions (``docs/performance.md``).
 
     :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
@@ -545,7 +546,7 @@ def decompose(
     )
     pts = _validated_points(points)
     root = _Draft(
-        box=minimum_bounding_box(pts, seed=settings.seed),
+        box=minimum_bounding_box(pts, seed=settings.seed, **ROOT_SEARCH),
         point_indices=np.arange(len(pts), dtype=np.intp),
         parent=None,
         depth=0,
