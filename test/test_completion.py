@@ -164,3 +164,52 @@ def test_bad_arguments_are_refused():
         complete_view(points, method='guess', spacing=SPACING)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match='spacing'):
         complete_view(points, method='mirror', spacing=0.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    yaw=st.floats(0.0, math.pi / 2),
+    elevation=st.floats(math.radians(20), math.radians(70)),
+    seed=st.integers(0, 2**16),
+)
+def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
+    yaw, elevation, seed
+):
+    """
+    The least share per normal, and where it is first reached, whatever order planes are tried in.
+
+    The plane search gives up a plane once it is worse than the best tried before it.
+    """
+    from mvbb_ros.geometry.completion import _middle_out, _mirror_violations
+
+    points, box, _ = box_view(np.array([0.12, 0.08, 0.2]), yaw, elevation, 0.7, seed=seed)
+    raster = view_raster(points, np.zeros(3), SPACING)
+    rng = np.random.default_rng(seed)
+    sample = np.ascontiguousarray(points[rng.choice(len(points), 64, replace=False)])
+    center = points.mean(axis=0)
+    normals = rng.normal(size=(6, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    offsets = np.sort(rng.uniform(-0.15, 0.15, size=(6, 25)), axis=1)
+
+    def shares(order: np.ndarray) -> np.ndarray:
+        return _mirror_violations(
+            sample,
+            center,
+            normals,
+            offsets,
+            raster.viewpoint,
+            raster.frame,
+            raster.origin,
+            raster.cell,
+            raster.mask,
+            raster.near,
+            raster.oblique,
+            SPACING,
+            order,
+        )
+
+    in_order = shares(np.arange(25, dtype=np.int64))
+    for order in (_middle_out(25), rng.permutation(25).astype(np.int64)):
+        tried = shares(np.ascontiguousarray(order))
+        np.testing.assert_array_equal(tried.min(axis=1), in_order.min(axis=1))
+        np.testing.assert_array_equal(np.argmin(tried, axis=1), np.argmin(in_order, axis=1))

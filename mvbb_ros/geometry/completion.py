@@ -90,7 +90,8 @@ SURFACE_GAP = 3.0
 
 @nb.njit(
     'float64[:, :](float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], '
-    'float64[:, :], float64[:], float64, boolean[:, :], float64[:, :], float64[:, :], float64)',
+    'float64[:, :], float64[:], float64, boolean[:, :], float64[:, :], float64[:, :], float64, '
+    'int64[:])',
     cache=True,
 )
 def _mirror_violations(
@@ -106,6 +107,7 @@ def _mirror_violations(
     near: FloatArray,
     oblique: FloatArray,
     tolerance: float,
+    order: IndexArray,
 ) -> FloatArray:
     """
     Return the share of `sample` whose mirror image contradicts the view, per plane.
@@ -114,8 +116,11 @@ def _mirror_violations(
     sensor saw too obliquely could reach (`oblique`, :func:`_oblique_ranges`), or more than
     `tolerance` in front of the nearest observed range in its cell.
 
-    Only each normal's first least value is needed: a plane is given up (its share left as the
-    count so far) as soon as it is refuted more than the best plane of its normal before it.
+    Only each normal's least value, and where it is first reached, are needed: the planes are
+    tried in `order` (the likeliest first, :func:`_middle_out`) and a plane is given up (its
+    share left as the count so far, above the least) as soon as it is refuted more than the best
+    plane of its normal tried before it. The least values and their first positions are those
+    of the full count.
     """
     rows, cols = mask.shape
     count = sample.shape[0]
@@ -123,7 +128,7 @@ def _mirror_violations(
     for k in range(normals.shape[0]):
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
         least = count + 1
-        for j in range(offsets.shape[1]):
+        for j in order:
             bad = 0
             for i in range(count):
                 if bad > least:
@@ -149,6 +154,12 @@ def _mirror_violations(
             out[k, j] = bad / count
             least = min(least, bad)
     return out
+
+
+def _middle_out(count: int) -> IndexArray:
+    """Return 0 .. count - 1 from the middle outwards (the middle, one below, one above, ...)."""
+    middle = (count - 1) // 2
+    return np.array(sorted(range(count), key=lambda j: (abs(j - middle), j)), dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -282,6 +293,7 @@ def find_mirror_plane(
             raster.near,
             raster.oblique,
             spacing,
+            _middle_out(offsets.shape[1]),
         )
 
     # Per normal: the nearest position with the fewest contradictions, found on a
