@@ -180,7 +180,7 @@ def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
 
     The plane search gives up a plane once it is worse than the best tried before it.
     """
-    from mvbb_ros.geometry.completion import _middle_out, _mirror_violations
+    from mvbb_ros.geometry.completion import _middle_out, plane_violations
 
     points, box, _ = box_view(np.array([0.12, 0.08, 0.2]), yaw, elevation, 0.7, seed=seed)
     raster = view_raster(points, np.zeros(3), SPACING)
@@ -192,24 +192,10 @@ def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
     offsets = np.sort(rng.uniform(-0.15, 0.15, size=(6, 25)), axis=1)
 
     def shares(order: np.ndarray) -> np.ndarray:
-        return _mirror_violations(
-            sample,
-            center,
-            normals,
-            offsets,
-            raster.viewpoint,
-            raster.frame,
-            raster.origin,
-            raster.cell,
-            raster.mask,
-            raster.near,
-            raster.oblique,
-            SPACING,
-            order,
-        )
+        return plane_violations(sample, center, normals, offsets, raster, SPACING, order)
 
     in_order = shares(np.arange(25, dtype=np.int64))
     for order in (_middle_out(25), rng.permutation(25).astype(np.int64)):
-        tried = shares(np.ascontiguousarray(order))
+        tried = shares(order)
         np.testing.assert_array_equal(tried.min(axis=1), in_order.min(axis=1))
         np.testing.assert_array_equal(np.argmin(tried, axis=1), np.argmin(in_order, axis=1))

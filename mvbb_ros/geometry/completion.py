@@ -162,6 +162,39 @@ def _middle_out(count: int) -> IndexArray:
     return np.array(sorted(range(count), key=lambda j: (abs(j - middle), j)), dtype=np.int64)
 
 
+def plane_violations(
+    sample: FloatArray,
+    center: FloatArray,
+    normals: FloatArray,
+    offsets: FloatArray,
+    raster: ViewRaster,
+    tolerance: float,
+    order: IndexArray | None = None,
+) -> FloatArray:
+    """
+    Return the share of `sample` whose mirror image contradicts the view, per plane (K, P).
+
+    The planes are ``normals[k]`` (K, 3) at ``offsets[k, j]`` (K, P) from `center`; `order` is
+    the order each normal's planes are tried in (default :func:`_middle_out`), which changes
+    only the shares above each normal's least (:func:`_mirror_violations`).
+    """
+    return _mirror_violations(
+        np.ascontiguousarray(sample, dtype=np.float64),
+        np.ascontiguousarray(center, dtype=np.float64),
+        np.ascontiguousarray(normals, dtype=np.float64),
+        np.ascontiguousarray(offsets, dtype=np.float64),
+        raster.viewpoint,
+        raster.frame,
+        raster.origin,
+        raster.cell,
+        raster.mask,
+        raster.near,
+        raster.oblique,
+        tolerance,
+        _middle_out(offsets.shape[1]) if order is None else np.ascontiguousarray(order),
+    )
+
+
 @dataclass(frozen=True)
 class MirrorPlane:
     """
@@ -280,21 +313,7 @@ def find_mirror_plane(
     planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
 
     def refuted(offsets: FloatArray) -> FloatArray:
-        return _mirror_violations(
-            sample,
-            center,
-            np.ascontiguousarray(normals),
-            np.ascontiguousarray(offsets),
-            raster.viewpoint,
-            raster.frame,
-            raster.origin,
-            raster.cell,
-            raster.mask,
-            raster.near,
-            raster.oblique,
-            spacing,
-            _middle_out(offsets.shape[1]),
-        )
+        return plane_violations(sample, center, normals, offsets, raster, spacing)
 
     # Per normal: the nearest position with the fewest contradictions, found on a
     # coarse ladder of positions and then on a fine one around the chosen rung.
