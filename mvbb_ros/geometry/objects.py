@@ -67,9 +67,9 @@ def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
                         delta = points[i, axis] - points[j, axis]
                         distance += delta * delta
                     if distance <= squared:
-                        first, second = _root(parent, i), _root(parent, j)
-                        if first != second:
-                            parent[max(first, second)] = min(first, second)
+                        mine, theirs = _root(parent, i), _root(parent, j)
+                        if mine != theirs:
+                            parent[max(mine, theirs)] = min(mine, theirs)
     labels = np.empty(count, dtype=np.int64)
     names = np.full(count, -1, dtype=np.int64)
     next_label = 0
