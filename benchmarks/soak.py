@@ -10,18 +10,24 @@ matched by stamp) and the node's resident memory over time.
     .venv/bin/python benchmarks/soak.py --cloud ../shared/data/models/bunny_vertices.npy \
         --rate 2 --minutes 0.5        # latency of one cloud at a time
 
+The peer, measured first in the same run (``--no-peer`` skips it): the same stream into an
+empty node on the same core, which answers every cloud it takes with one marker and does
+nothing else. What it misses is the middleware's and rclpy's cost of moving the clouds (an
+organized 300k frame is a 1.1-megapixel image, 13 MB a message), which no pipeline can win back.
+
 The clouds are published reliable with keep last 1, as camera drivers and bag players do
-(``--reliability best_effort`` to compare: the middleware then loses most 3.6 MB clouds before
-the node sees them, 96-98 % here). The node runs on one core (``--node-core``, default 1; this
-process on the other), as on a robot that gives the decomposer one core. The last lines compare
-the figures with issue 17's targets: at least 95 % of the clouds answered, p99 latency under
-50 ms, resident memory growing less than 5 % after the first sample (warm-up), exit code 0 on
-SIGINT.
+(``--reliability best_effort`` to compare: the middleware then loses most large clouds before
+the node sees them). The node runs on one core (``--node-core``, default 1; this process on the
+other), as on a robot that gives the decomposer one core. The last lines compare the
+decomposer's figures with issue 17's targets: at least 95 % of the clouds answered, p99 latency
+under 50 ms, resident memory growing less than 5 % after the first sample (warm-up), exit code
+0 on SIGINT.
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 import os
 from pathlib import Path
 import random
@@ -33,76 +39,82 @@ import time
 import numpy as np
 import psutil
 
+#: The topic the clouds go to and the one the answers come from (the node's defaults).
+CLOUD_TOPIC = 'cloud_in'
+BOXES_TOPIC = '/decomposer/boxes'
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--minutes', type=float, default=1.0, help='duration (default 1)')
-    parser.add_argument('--rate', type=float, default=30.0, help='clouds per second (30)')
-    parser.add_argument('--points', type=int, default=300_000, help='points per cloud (300k)')
-    parser.add_argument('--memory-every', type=float, default=30.0, help='RSS sample period, s')
-    parser.add_argument('--node-core', type=int, default=1, help='CPU of the node (default 1)')
-    parser.add_argument(
-        '--reliability',
-        choices=('reliable', 'best_effort'),
-        default='reliable',
-        help="the clouds' QoS (default reliable, as camera drivers and bag players publish; "
-        'best effort loses most 3.6 MB clouds in the middleware before the node sees them)',
+
+@dataclass
+class Figures:
+    """What one stream into one node measured."""
+
+    elapsed_s: float  # streaming, without the drain after the last cloud
+    sent: int
+    latencies_ms: np.ndarray
+    memory: list[tuple[float, int]]
+    exit_code: int | None
+
+    @property
+    def answered(self) -> int:
+        """Clouds whose boxes came back."""
+        return len(self.latencies_ms)
+
+    @property
+    def share(self) -> float:
+        """Answered over sent."""
+        return self.answered / max(self.sent, 1)
+
+    def percentile_ms(self, q: float) -> float:
+        """Latency percentile, ms (inf when nothing was answered)."""
+        return float(np.percentile(self.latencies_ms, q)) if self.answered else float('inf')
+
+    @property
+    def growth(self) -> float:
+        """Resident memory growth after the first sample (the warm-up), as a share."""
+        if len(self.memory) <= 2:
+            return 0.0
+        return (self.memory[-1][1] - self.memory[1][1]) / self.memory[1][1]
+
+
+def empty_node() -> int:
+    """Run the peer: a node named like the decomposer that answers each cloud and does nothing."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    rclpy.init()
+    node = rclpy.create_node('decomposer')
+    publisher = node.create_publisher(MarkerArray, '~/boxes', 10)
+
+    def answer(cloud: PointCloud2) -> None:
+        marker = Marker(header=cloud.header, action=Marker.DELETEALL)
+        publisher.publish(MarkerArray(markers=[marker]))
+
+    reliable = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE
     )
-    parser.add_argument(
-        '--cloud',
-        type=Path,
-        help='a .npy (N, 3) cloud in metres instead of the synthetic 300k-point frame',
-    )
-    args = parser.parse_args()
+    node.create_subscription(PointCloud2, CLOUD_TOPIC, answer, reliable)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
-    os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-    from mvbb_ros.cli.synthetic import organized_frame
-    from mvbb_ros.ros.encode import create_cloud_xyz
+def stream(command: list[str], frames: list, args: argparse.Namespace, client) -> Figures:
+    """Start `command` on the node's core, stream `frames` into it, and measure the answers."""
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import MarkerArray
 
-    frames = []
-    if args.cloud is not None:
-        points = np.load(args.cloud)
-        frames.append(create_cloud_xyz(points, frame_id='camera_optical_frame'))
-        print(f'{args.cloud.name}: {len(points)} points', flush=True)
-    else:
-        for seed in range(4):
-            grid = organized_frame(args.points, seed=seed)
-            frames.append(
-                create_cloud_xyz(
-                    grid.reshape(-1, 3),
-                    organized_shape=grid.shape[:2],
-                    frame_id='camera_optical_frame',
-                )
-            )
-        finite = int(np.isfinite(grid).all(axis=2).sum())
-        print(
-            f'{len(frames)} frames of {grid.shape[1]}x{grid.shape[0]} '
-            f'({finite} object points each)',
-            flush=True,
-        )
-
-    executable = Path(sys.executable).parent / 'decomposer'
-    node = subprocess.Popen(
-        [str(executable)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
+    node = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     process = psutil.Process(node.pid)
     process.cpu_affinity([args.node_core])
-    others = sorted(set(os.sched_getaffinity(0)) - {args.node_core})
-    if others:
-        os.sched_setaffinity(0, others)
-    print(
-        f'node on CPU {args.node_core}, this process on {others}; load average '
-        + ' '.join(f'{value:.2f}' for value in os.getloadavg()),
-        flush=True,
-    )
-    rclpy.init()
-    client = rclpy.create_node('soak')
     sent: dict[tuple[int, int], float] = {}
     latencies: list[float] = []
 
@@ -115,10 +127,10 @@ def main() -> int:
     reliable = QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
     )
-    client.create_subscription(MarkerArray, '/decomposer/boxes', on_boxes, reliable)
+    subscription = client.create_subscription(MarkerArray, BOXES_TOPIC, on_boxes, reliable)
     publisher = client.create_publisher(
         PointCloud2,
-        'cloud_in',
+        CLOUD_TOPIC,
         QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
             depth=1,
@@ -127,20 +139,22 @@ def main() -> int:
             else ReliabilityPolicy.BEST_EFFORT,
         ),
     )
+    count = 0
+    memory: list[tuple[float, int]] = []
+    elapsed = 0.0
+    exit_code = None
     try:
         deadline = time.monotonic() + 60.0
         while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
             rclpy.spin_once(client, timeout_sec=0.1)
         if publisher.get_subscription_count() == 0:
-            print('the decomposer did not come up', file=sys.stderr)
-            return 1
-        memory = [(0.0, process.memory_info().rss)]
+            raise RuntimeError(f'{command[-1]} did not come up within 60 s')
+        memory.append((0.0, process.memory_info().rss))
         period = 1.0 / args.rate
         start = time.monotonic()
         end = start + args.minutes * 60.0
         next_send = start
         next_memory = start + args.memory_every
-        count = 0
         while time.monotonic() < end:
             now = time.monotonic()
             if now >= next_send:
@@ -156,45 +170,151 @@ def main() -> int:
                 memory.append((now - start, process.memory_info().rss))
                 next_memory += args.memory_every
             rclpy.spin_once(client, timeout_sec=max(0.0, min(next_send, end) - time.monotonic()))
+        elapsed = time.monotonic() - start
         drain = time.monotonic() + 3.0
         while time.monotonic() < drain:
             rclpy.spin_once(client, timeout_sec=0.05)
         memory.append((time.monotonic() - start, process.memory_info().rss))
-        elapsed = time.monotonic() - start
     finally:
         node.send_signal(signal.SIGINT)
         exit_code = node.wait(timeout=30)
+        client.destroy_subscription(subscription)
+        client.destroy_publisher(publisher)
+    return Figures(elapsed, count, np.array(latencies) * 1e3, memory, exit_code)
+
+
+def report(name: str, figures: Figures) -> None:
+    """Print one node's figures."""
+    elapsed = max(figures.elapsed_s, 1e-9)
+    print(
+        f'{name}: {elapsed:.0f} s, sent {figures.sent} clouds ({figures.sent / elapsed:.1f} Hz), '
+        f'answered {figures.answered} ({figures.answered / elapsed:.1f} Hz, '
+        f'{100.0 * figures.share:.1f} %), dropped {figures.sent - figures.answered}'
+    )
+    if figures.answered:
+        print(
+            f'  latency publish -> boxes: p50 {figures.percentile_ms(50):.1f} ms, '
+            f'p99 {figures.percentile_ms(99):.1f} ms, max {figures.latencies_ms.max():.1f} ms'
+        )
+    print(
+        '  resident memory (MiB) over time: '
+        + ', '.join(f'{seconds:.0f} s {rss / 2**20:.1f}' for seconds, rss in figures.memory)
+    )
+    print(f'  memory growth after the first sample: {100.0 * figures.growth:+.1f}%')
+    print(f'  exit code on SIGINT: {figures.exit_code}')
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--minutes', type=float, default=1.0, help='duration (default 1)')
+    parser.add_argument('--rate', type=float, default=30.0, help='clouds per second (30)')
+    parser.add_argument('--points', type=int, default=300_000, help='points per cloud (300k)')
+    parser.add_argument('--memory-every', type=float, default=30.0, help='RSS sample period, s')
+    parser.add_argument('--node-core', type=int, default=1, help='CPU of the node (default 1)')
+    parser.add_argument(
+        '--reliability',
+        choices=('reliable', 'best_effort'),
+        default='reliable',
+        help="the clouds' QoS (default reliable, as camera drivers and bag players publish; "
+        'best effort loses most large clouds in the middleware before the node sees them)',
+    )
+    parser.add_argument(
+        '--cloud',
+        type=Path,
+        help='a .npy (N, 3) cloud in metres instead of the synthetic 300k-point frame',
+    )
+    parser.add_argument(
+        '--unorganized',
+        action='store_true',
+        help="send the synthetic frame's object points only, as an unorganized cloud "
+        '(3.6 MB a message instead of the organized 13 MB)',
+    )
+    parser.add_argument(
+        '--no-peer',
+        action='store_true',
+        help='skip the empty node streamed first (the transport alone, for comparison)',
+    )
+    parser.add_argument('--empty-node', action='store_true', help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.empty_node:
+        return empty_node()
+
+    os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+    from mvbb_ros.cli.synthetic import organized_frame
+    from mvbb_ros.ros.encode import create_cloud_xyz
+    import rclpy
+
+    frames = []
+    if args.cloud is not None:
+        points = np.load(args.cloud)
+        frames.append(create_cloud_xyz(points, frame_id='camera_optical_frame'))
+        print(f'{args.cloud.name}: {len(points)} points', flush=True)
+    else:
+        for seed in range(4):
+            grid = organized_frame(args.points, seed=seed)
+            if args.unorganized:
+                points = grid.reshape(-1, 3)
+                cloud = create_cloud_xyz(
+                    points[np.isfinite(points).all(axis=1)], frame_id='camera_optical_frame'
+                )
+            else:
+                cloud = create_cloud_xyz(
+                    grid.reshape(-1, 3),
+                    organized_shape=grid.shape[:2],
+                    frame_id='camera_optical_frame',
+                )
+            frames.append(cloud)
+        finite = int(np.isfinite(grid).all(axis=2).sum())
+        shape = 'unorganized' if args.unorganized else f'organized {grid.shape[1]}x{grid.shape[0]}'
+        print(
+            f'{len(frames)} frames, {shape} ({finite} object points each, '
+            f'{len(frames[0].data) / 1e6:.1f} MB a message)',
+            flush=True,
+        )
+    others = sorted(set(os.sched_getaffinity(0)) - {args.node_core})
+    if others:
+        os.sched_setaffinity(0, others)
+    print(
+        f'node on CPU {args.node_core}, this process on {others}; load average '
+        + ' '.join(f'{value:.2f}' for value in os.getloadavg()),
+        flush=True,
+    )
+    nodes = [('decomposer', [str(Path(sys.executable).parent / 'decomposer')])]
+    if not args.no_peer:
+        empty = [sys.executable, str(Path(__file__).resolve()), '--empty-node']
+        nodes.insert(0, ('empty node (peer)', empty))
+    rclpy.init()
+    client = rclpy.create_node('soak')
+    measured = {}
+    try:
+        for name, command in nodes:
+            measured[name] = stream(command, frames, args, client)
+            report(name, measured[name])
+    except RuntimeError as error:
+        print(error, file=sys.stderr)
+        return 1
+    finally:
         client.destroy_node()
         rclpy.shutdown()
 
-    answered = len(latencies)
-    share = answered / max(count, 1)
-    print(
-        f'duration {elapsed:.0f} s, sent {count} clouds ({count / elapsed:.1f} Hz), '
-        f'answered {answered} ({answered / elapsed:.1f} Hz), dropped {count - answered} '
-        f'({100.0 * (count - answered) / max(count, 1):.1f}%)'
-    )
-    if latencies:
-        milliseconds = np.array(latencies) * 1e3
+    figures = measured['decomposer']
+    if 'empty node (peer)' in measured:
+        peer = measured['empty node (peer)']
         print(
-            f'latency publish -> boxes: p50 {np.percentile(milliseconds, 50):.1f} ms, '
-            f'p99 {np.percentile(milliseconds, 99):.1f} ms, max {milliseconds.max():.1f} ms'
+            f'decomposer over the empty node: answered {figures.share / max(peer.share, 1e-9):.2f}'
+            f' x, p99 latency {figures.percentile_ms(99) / peer.percentile_ms(99):.2f} x'
         )
-    print('node resident memory (MiB) over time:')
-    for seconds, rss in memory:
-        print(f'  {seconds:7.0f} s  {rss / 2**20:8.1f}')
-    growth = (memory[-1][1] - memory[1][1]) / memory[1][1] if len(memory) > 2 else 0.0
-    print(f'memory growth after the first sample: {100.0 * growth:+.1f}%')
-    print(f'node exit code on SIGINT: {exit_code}')
-    p99 = float(np.percentile(np.array(latencies) * 1e3, 99)) if latencies else float('inf')
+    p99 = figures.percentile_ms(99)
     targets = [
-        (f'answered {100.0 * share:.1f} % >= 95 %', share >= 0.95),
+        (f'answered {100.0 * figures.share:.1f} % >= 95 %', figures.share >= 0.95),
         (f'p99 latency {p99:.1f} ms < 50 ms', p99 < 50.0),
-        (f'memory growth {100.0 * growth:+.1f} % < 5 %', growth < 0.05),
-        (f'exit code {exit_code} == 0', exit_code == 0),
+        (f'memory growth {100.0 * figures.growth:+.1f} % < 5 %', figures.growth < 0.05),
+        (f'exit code {figures.exit_code} == 0', figures.exit_code == 0),
     ]
     print('targets: ' + '; '.join(f'{what}: {"met" if ok else "MISSED"}' for what, ok in targets))
-    return 0 if exit_code == 0 else 1
+    return 0 if all(f.exit_code == 0 for f in measured.values()) else 1
 
 
 if __name__ == '__main__':
