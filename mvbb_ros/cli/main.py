@@ -15,6 +15,7 @@ import argparse
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 import json
+import os
 from pathlib import Path
 import signal
 import sys
@@ -43,6 +44,8 @@ if TYPE_CHECKING:  # the pipeline loads numba: imported when a command runs (see
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+#: The reader of stdout closed it: the shell's code for a process killed by SIGPIPE.
+EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 #: `mvbb bag play`'s default wait for subscribers, seconds (``bag_play.DEFAULT_WAIT_S``, which
 #: this module does not import: the ROS modules load only in the commands that need them).
 PLAY_WAIT_S = 30.0
@@ -607,12 +610,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.handler(args)
+        code = args.handler(args)
+        sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
+        return code
     except (FileNotFoundError, ValueError) as error:
         print(f'mvbb {args.command}: error: {error}', file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
         return EXIT_FAILURE
+    except BrokenPipeError:
+        # The reader went away (`mvbb decompose FILE | head`): stop quietly, as a shell tool does.
+        # What is still buffered would fail again at exit, so stdout goes to /dev/null.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == '__main__':

@@ -1,0 +1,46 @@
+"""The installed `mvbb` command as a shell runs it: exit codes and what it writes to stderr."""
+
+from __future__ import annotations
+
+from pathlib import Path
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+MVBB = Path(sys.executable).parent / 'mvbb'
+
+
+@pytest.fixture
+def cloud(tmp_path: Path) -> Path:
+    """Return a .npy file of a 10 x 6 x 6 cm block of points 0.7 m in front of the camera."""
+    rng = np.random.default_rng(5)
+    path = tmp_path / 'block.npy'
+    points = rng.uniform([-0.05, -0.03, 0.7], [0.05, 0.03, 0.76], size=(3000, 3))
+    np.save(path, points.astype(np.float32))
+    return path
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly(cloud):
+    """`mvbb decompose FILE | head -0`: no traceback, the shell's code for SIGPIPE."""
+    command = subprocess.Popen(
+        [str(MVBB), 'decompose', str(cloud)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert command.stdout is not None and command.stderr is not None
+    command.stdout.close()  # the reader is gone before the first line is written
+    errors = command.stderr.read().decode()
+    assert command.wait(timeout=120) == 128 + signal.SIGPIPE, errors
+    assert 'Traceback' not in errors and 'BrokenPipeError' not in errors, errors
+    assert errors == ''
+
+
+def test_the_same_command_with_a_reader_prints_the_report(cloud):
+    result = subprocess.run(
+        [str(MVBB), 'decompose', str(cloud)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert 'grasp hypotheses' in result.stdout
