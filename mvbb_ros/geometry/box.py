@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import itertools
 from typing import Any
 
-from mvbb_ros.arrays import FloatArray
+from mvbb_ros.arrays import column_max, column_min, FloatArray
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -99,8 +99,8 @@ class Box:
         rot = np.eye(3) if rotation is None else right_handed(rotation)
         origin = pts[0]
         local = (pts - origin) @ rot
-        low = local.min(axis=0)
-        high = local.max(axis=0)
+        low = column_min(local)
+        high = column_max(local)
         center = origin + rot @ ((low + high) / 2.0)
         return cls(center=center, rotation=rot, extents=high - low)
 

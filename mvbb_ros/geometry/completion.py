@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import math
 from typing import get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
+from mvbb_ros.arrays import BoolArray, column_span, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
 from mvbb_ros.geometry.raster import (
@@ -308,7 +308,7 @@ def find_mirror_plane(
     normals, preferred, fan = _candidate_normals(view, up, np.asarray(axes, dtype=np.float64))
     heights = (points - center) @ normals.T
     nearest = heights.min(axis=0)
-    size = float(np.max(np.ptp(points, axis=0)))
+    size = float(np.max(column_span(points)))
     steps = np.linspace(0.0, 1.0, MIRROR_OFFSETS)
     planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
 
@@ -381,7 +381,7 @@ def _completion_size(
     both = np.concatenate([sample, _mirrored(sample, normal, point)])
     if up is None:
         local = both @ np.asarray(axes).T
-        return float(np.prod(np.ptp(local, axis=0)))
+        return float(np.prod(column_span(local)))
     first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
     first /= np.linalg.norm(first)
     flat = np.column_stack([both @ first, both @ np.cross(up, first)])

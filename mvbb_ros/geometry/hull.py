@@ -42,7 +42,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.arrays import column_max, column_min, FloatArray, IndexArray
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -669,7 +669,7 @@ def column_extremes(points: ArrayLike, cells: int) -> IndexArray:
     :return: the kept indices, sorted.
     """
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-    kept = column_extremes_kernel(pts, pts.min(axis=0), pts.max(axis=0), int(cells))
+    kept = column_extremes_kernel(pts, column_min(pts), column_max(pts), int(cells))
     return np.sort(kept)
 
 

@@ -15,7 +15,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
+from mvbb_ros.arrays import (
+    BoolArray,
+    column_max,
+    column_min,
+    column_span,
+    FloatArray,
+    IndexArray,
+)
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -243,17 +250,17 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
         raise ValueError('no point lies in front of the viewpoint')
     tangent = relative[ahead, :2] / relative[ahead, 2:3]
     distance = float(np.median(np.linalg.norm(pts - eye, axis=1)))
-    widest = float(np.max(np.ptp(tangent, axis=0)))
+    widest = float(np.max(column_span(tangent)))
     cell = max(CELLS_PER_SPACING * spacing / distance, widest / MAX_RASTER_SIDE)
     # Room around the outline for the band a surface seen too obliquely may hide: its reach
     # across the rays for a depth of twice the object's size (a mirror image lies at most that
     # far behind the nearest point).
-    size = float(np.max(np.ptp(pts, axis=0)))
+    size = float(np.max(column_span(pts)))
     nearest = float(np.min(np.linalg.norm(pts - eye, axis=1)))
     reach = GRAZING_SLOPE * 2.0 * size / (max(nearest, 1e-9) * cell)
     margin = max(4, min(MAX_GRAZING_CELLS, math.ceil(reach)))
-    origin = tangent.min(axis=0) - margin * cell
-    shape = np.ceil((tangent.max(axis=0) - origin) / cell).astype(np.int64) + margin + 1
+    origin = column_min(tangent) - margin * cell
+    shape = np.ceil((column_max(tangent) - origin) / cell).astype(np.int64) + margin + 1
     rows, cols = int(shape[0]), int(shape[1])
     index, ranges = _cells(pts, eye, frame, origin, cell, rows, cols)
     seen = index[:, 0] >= 0

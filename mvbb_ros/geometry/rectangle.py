@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from mvbb_ros.arrays import FloatArray
+from mvbb_ros.arrays import column_max, column_min, FloatArray
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -314,7 +314,7 @@ def min_area_rectangle(points: ArrayLike) -> Rectangle:
         raise ValueError('planar points must be finite, got NaN or inf')
     # Relative to the centre of the bounding box, scaled to unit size: far and tiny clouds keep
     # their precision and nothing underflows.
-    origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    origin = 0.5 * (column_min(pts) + column_max(pts))
     scale = float(np.max(np.abs(pts - origin)))
     scale = scale if scale > 0.0 else 1.0
     unit = (pts - origin) / scale

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from mvbb_ros.arrays import FloatArray
+from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray
 from mvbb_ros.geometry.cells import cell_grid, cell_start, column_keys
 import numba as nb
 import numpy as np
@@ -237,13 +237,13 @@ def surface_model(
     if not cell > 0.0:
         raise ValueError(f'cell must be > 0, got {cell!r}')
     margin = 2
-    span = np.ptp(pts, axis=0) if len(pts) else np.zeros(3)
+    span = column_span(pts) if len(pts) else np.zeros(3)
     cells = float(np.prod(span / cell + 2 * margin + 1))
     if cells > MAX_GRID_CELLS:
         cell *= (cells / MAX_GRID_CELLS) ** (1.0 / 3.0)
-    low = pts.min(axis=0) - margin * cell
+    low = column_min(pts) - margin * cell
     index = np.floor((pts - low) / cell).astype(np.int64)
-    shape = tuple(int(v) for v in index.max(axis=0) + margin + 1)
+    shape = tuple(int(v) for v in column_max(index) + margin + 1)
     occupied = np.zeros(shape, dtype=bool)
     occupied[index[:, 0], index[:, 1], index[:, 2]] = True
     solid = ndimage.binary_closing(occupied) | occupied

@@ -66,6 +66,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from mvbb_ros.arrays import column_max, column_min
 from mvbb_ros.pipeline.outliers import remove_statistical_outliers
 from numba import njit, types
 import numpy as np
@@ -638,5 +639,5 @@ def warm_up() -> None:
     for dtype in (np.float32, np.float64):
         points = np.arange(12, dtype=dtype).reshape(4, 3)
         voxel_down_sample(points, 1.0, crop_min=(0, 0, 0), crop_max=(9, 9, 9))
-        voxel_down_sample(points, 1.0, bounds=[points.min(axis=0), points.max(axis=0)])
+        voxel_down_sample(points, 1.0, bounds=[column_min(points), column_max(points)])
         crop_points(points, (0, 0, 0), (5, 5, 5))

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, field
 import time
 from typing import Any
 
-from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.arrays import column_span, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.completion import complete_view, CompletedView
 from mvbb_ros.geometry.contacts import GraspView
@@ -132,7 +132,7 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
     spacing = max(float(np.median(distances[:, 1])), voxel_size)
     if spacing > 0.0:
         return spacing
-    extent = float(np.max(np.ptp(points, axis=0)))
+    extent = float(np.max(column_span(points)))
     return extent / 100.0 if extent > 0.0 else 1.0
 
 
@@ -164,11 +164,7 @@ def implausible_extent(
     if len(points) == 0:
         return None
     if bounds is None:
-        # Column by column: numpy reduces an (N, 3) array along axis 0 three values at a
-        # time, 16 ms on 300k points against 0.6 ms for the three columns.
-        extent = np.array(
-            [float(points[:, axis].max()) - float(points[:, axis].min()) for axis in range(3)]
-        )
+        extent = column_span(points)
     else:
         corners = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
         extent = corners[1] - corners[0]
