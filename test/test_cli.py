@@ -6,6 +6,7 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 import pytest
@@ -44,3 +45,12 @@ def test_the_same_command_with_a_reader_prints_the_report(cloud):
     )
     assert result.returncode == 0, result.stderr
     assert 'grasp hypotheses' in result.stdout
+
+
+def test_version_is_the_package_version():
+    """`mvbb --version` prints the version package.xml declares (setup.py must agree)."""
+    manifest = ElementTree.parse(Path(__file__).resolve().parents[1] / 'package.xml')
+    declared = manifest.getroot().findtext('version')
+    result = subprocess.run([str(MVBB), '--version'], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ['mvbb', declared]

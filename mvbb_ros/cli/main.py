@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict
+import importlib.metadata
 import json
 import os
 from pathlib import Path
@@ -159,6 +160,14 @@ def _add_bag_commands(commands: argparse._SubParsersAction) -> None:
     process.set_defaults(handler=_run_bag_process)
 
 
+def _version() -> str:
+    """Return the installed package's version (setup.py's, which package.xml repeats)."""
+    try:
+        return importlib.metadata.version('mvbb_ros')
+    except importlib.metadata.PackageNotFoundError:  # run from a source tree, not installed
+        return 'unknown (not installed)'
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser of the `mvbb` command."""
     parser = argparse.ArgumentParser(
@@ -166,6 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
         description='Minimum-volume bounding box decomposition of point clouds into boxes and '
         'grasp poses (Huebner, Ruthotto and Kragic, ICRA 2008).',
     )
+    parser.add_argument('--version', action='version', version=f'%(prog)s {_version()}')
     commands = parser.add_subparsers(dest='command', metavar='COMMAND')
     commands.required = True
 
