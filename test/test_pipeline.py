@@ -7,7 +7,12 @@ from types import SimpleNamespace
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 from mvbb_ros.pipeline.decode import CloudFormatError, read_points, read_xyz
-from mvbb_ros.pipeline.process import decode_cloud, process_cloud, process_points
+from mvbb_ros.pipeline.process import (
+    decode_cloud,
+    implausible_extent,
+    process_cloud,
+    process_points,
+)
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
@@ -183,3 +188,11 @@ def test_the_crop_while_decoding_gives_what_the_filters_give_on_points():
 def test_the_voxel_backend_setting_is_gone_and_says_why():
     with pytest.raises(ValueError, match="voxel_backend was replaced by nothing.*Open3D's"):
         PipelineSettings().updated({'voxel_backend': 'numpy'})
+
+
+def test_an_absurd_float32_cloud_is_refused_with_its_finite_span():
+    """Random bytes reach +-3.4e38 in float32: the reason gives the span, not inf."""
+    points = np.array([[3.4e38, 0.0, 0.1], [-3.4e38, 0.2, 0.3]], dtype=np.float32)
+    reason = implausible_extent(points)
+    assert reason is not None and '6.8e+38 x 0.2 x 0.2 m' in reason, reason
+    assert implausible_extent(points[:, [1, 2, 1]] * np.float32(10.0)) is None

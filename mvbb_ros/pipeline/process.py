@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, field
 import time
 from typing import Any
 
-from mvbb_ros.arrays import column_span, FloatArray, IndexArray
+from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.completion import complete_view, CompletedView
 from mvbb_ros.geometry.contacts import GraspView
@@ -164,7 +164,8 @@ def implausible_extent(
     if len(points) == 0:
         return None
     if bounds is None:
-        extent = column_span(points)
+        # In float64: float32 extremes (random bytes) would overflow to inf in the message.
+        extent = column_max(points).astype(np.float64) - column_min(points).astype(np.float64)
     else:
         corners = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
         extent = corners[1] - corners[0]
