@@ -302,26 +302,29 @@ def _occluded_faces(
     depth = tolerance + floor  # the slab reaches `floor` behind the face plane, for rounding
 
     half = extents / 2.0
-    for face in range(len(FACE_NAMES)):
-        axis, sign = divmod(face, 2)
-        sign_value = -1.0 if sign else 1.0
-        normals = sign_value * rotations[:, :, axis]  # (B, 3)
-        face_centers = centers + normals * half[:, [axis]]
-        # Slab per (owner, other) pair: inset by tol in-plane, from the face plane to tol outside.
-        slab_half = np.maximum(half[:, None, :] - tolerance[:, :, None], 0.0)
-        slab_half[:, :, axis] = depth / 2.0
-        offsets = (tolerance - depth / 2.0)[:, :, None]
-        slab_centers = face_centers[:, None, :] + normals[:, None, :] * offsets
-        hits = boxes_intersect(
-            slab_centers,
-            rotations[:, None, :, :],
-            slab_half,
-            centers[None, :, :],
-            rotations[None, :, :, :],
-            half[None, :, :],
-        )
-        np.fill_diagonal(hits, False)
-        occluded[:, face] = hits.any(axis=1)
+    # The six faces in one separating-axis call (leading axis: the face), then (B, B) each.
+    faces = len(FACE_NAMES)
+    axis_of = np.arange(faces) // 2
+    signs = np.where(np.arange(faces) % 2 == 1, -1.0, 1.0)
+    normals = signs[:, None, None] * np.moveaxis(rotations[:, :, axis_of], -1, 0)  # (6, B, 3)
+    face_centers = centers[None, :, :] + normals * half[:, axis_of].T[:, :, None]
+    # Slab per (face, owner, other): inset by tol in-plane, from the face plane to tol outside.
+    slab_half = np.broadcast_to(
+        np.maximum(half[:, None, :] - tolerance[:, :, None], 0.0), (faces, count, count, 3)
+    ).copy()
+    slab_half[np.arange(faces), :, :, axis_of] = depth / 2.0
+    offsets = (tolerance - depth / 2.0)[None, :, :, None]
+    slab_centers = face_centers[:, :, None, :] + normals[:, :, None, :] * offsets
+    hits = boxes_intersect(
+        slab_centers,
+        rotations[None, :, None, :, :],
+        slab_half,
+        centers[None, None, :, :],
+        rotations[None, None, :, :, :],
+        half[None, None, :, :],
+    )  # (6, B, B)
+    hits[:, np.arange(count), np.arange(count)] = False
+    occluded[:, :] = hits.any(axis=2).T
     return occluded
 
 
