@@ -287,34 +287,44 @@ def _grasps(
     view: GraspView,
 ) -> list[Grasp]:
     """Return the grasps of evaluated rows (valid ones), in the given order."""
-    quaternions = gripper_quaternions(approaches, closings, view.approach_axis)
+    quaternions = _frozen(gripper_quaternions(approaches, closings, view.approach_axis))
     faces, rolls = _faces_and_rolls(boxes, box_index, approaches, closings)
-    out = []
-    for i in range(len(rows)):
-        row = rows[i]
-        position = (
-            origins[i]
-            + row[COL_CENTER] * closings[i]
-            + (row[COL_FIRST] - view.standoff) * approaches[i]
+    # Whole columns at once; each grasp holds read-only rows of these arrays.
+    positions = _frozen(
+        origins
+        + rows[:, COL_CENTER, None] * closings
+        + (rows[:, COL_FIRST, None] - view.standoff) * approaches
+    )
+    approaches, closings = _frozen(approaches), _frozen(closings)
+    widths = np.minimum(rows[:, COL_WIDTH] + settings.width_margin, view.gripper_max_width)
+    depths = view.standoff + rows[:, COL_DEPTH]
+    return [
+        Grasp(
+            position=positions[i],
+            quaternion=quaternions[i],
+            approach=approaches[i],
+            closing=closings[i],
+            width=width,
+            box_index=box,
+            face=face,
+            roll_deg=roll,
+            score=score,
+            object_index=number,
+            depth=depth,
         )
-        box = int(box_index[i])
-        width = min(row[COL_WIDTH] + settings.width_margin, view.gripper_max_width)
-        out.append(
-            Grasp(
-                position=_frozen(position),
-                quaternion=_frozen(quaternions[i]),
-                approach=_frozen(approaches[i]),
-                closing=_frozen(closings[i]),
-                width=float(width),
-                box_index=box,
-                face=int(faces[i]),
-                roll_deg=int(rolls[i]),
-                score=float(scores[i]),
-                object_index=int(objects[i]),
-                depth=float(view.standoff + row[COL_DEPTH]),
+        for i, (width, box, face, roll, score, number, depth) in enumerate(
+            zip(
+                widths.tolist(),
+                box_index.tolist(),
+                faces.tolist(),
+                rolls.tolist(),
+                scores.tolist(),
+                objects.tolist(),
+                depths.tolist(),
+                strict=True,
             )
         )
-    return out
+    ]
 
 
 def _frozen(values: ArrayLike) -> FloatArray:
