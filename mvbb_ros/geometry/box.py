@@ -8,6 +8,7 @@ sensor data).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import itertools
 from typing import Any
@@ -144,8 +145,7 @@ class Box:
     @property
     def quaternion(self) -> FloatArray:
         """Orientation as a unit quaternion ordered x, y, z, w with w >= 0, as in ROS messages."""
-        quat = Rotation.from_matrix(self.rotation).as_quat()
-        return -quat if quat[3] < 0.0 else quat
+        return box_quaternions([self])[0]
 
     def corners(self) -> FloatArray:
         """
@@ -214,3 +214,16 @@ class Box:
         center = np.array2string(self.center, precision=4)
         extents = np.array2string(self.extents, precision=4)
         return f'Box(center={center}, extents={extents}, volume={self.volume:.6g})'
+
+
+def box_quaternions(boxes: Sequence[Box]) -> FloatArray:
+    """
+    Return the boxes' orientations, (B, 4) unit quaternions x, y, z, w with w >= 0.
+
+    One conversion for all boxes: :attr:`Box.quaternion` of each, at the cost of one.
+    """
+    if not boxes:
+        return np.zeros((0, 4))
+    quaternions = Rotation.from_matrix(np.stack([box.rotation for box in boxes])).as_quat()
+    quaternions[quaternions[:, 3] < 0.0] *= -1.0
+    return quaternions

@@ -28,7 +28,7 @@ from typing import Any
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
-from mvbb_ros.geometry.box import Box, EDGES
+from mvbb_ros.geometry.box import Box, box_quaternions, EDGES
 from mvbb_ros.geometry.grasps import Grasp
 from mvbb_ros.pipeline.process import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
@@ -131,11 +131,12 @@ def box_markers(
         return array
     largest = max(float(np.max(box.extents)) for box in boxes)
     width = line_width if line_width is not None else max(0.01 * largest, MIN_MARKER_SCALE)
+    quaternions = box_quaternions(boxes)
     for index, box in enumerate(boxes):
         prefix = f'object{0 if objects is None else objects[index]}/{namespace_prefix}'
         if fill_alpha > 0.0:
             cube = _marker(header, f'{prefix}boxes', index, Marker.CUBE)
-            cube.pose = _pose(box.center, box.quaternion)
+            cube.pose = _pose(box.center, quaternions[index])
             scale = np.maximum(box.extents, MIN_MARKER_SCALE)
             cube.scale.x, cube.scale.y, cube.scale.z = (float(v) for v in scale)
             cube.color = _color(index, fill_alpha)
@@ -226,7 +227,7 @@ def box_list_cloud(result: PipelineResult | None, header: Header) -> PointCloud2
     ]
     rows = [*leaves, *inner]
     row_of = {(item.index, node.index): row for row, (item, node) in enumerate(rows)}
-    quaternions = [node.box.quaternion for _, node in rows]
+    quaternions = box_quaternions([node.box for _, node in rows])
     floats: dict[str, Sequence[float]] = {
         name: [float(q[axis]) for q in quaternions]
         for axis, name in enumerate(BOX_FLOAT_FIELDS[:4])
