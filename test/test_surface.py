@@ -63,6 +63,46 @@ def test_normals_are_the_pca_of_every_neighbour_within_the_radius(count, seed, r
     assert np.all(agreement > 1.0 - 1e-6)
 
 
+def _surface_cells_by_ndimage(points: np.ndarray, cell: float, seen: int):
+    """Return surface._surface_cells' answer with scipy.ndimage's closing and erosion."""
+    from scipy import ndimage
+
+    low = points.min(axis=0) - 2 * cell
+    index = np.floor((points - low) / cell).astype(np.int64)
+    shape = tuple(int(v) for v in index.max(axis=0) + 3)
+    occupied = np.zeros(shape, dtype=bool)
+    occupied[tuple(index.T)] = True
+    solid = ndimage.binary_closing(occupied) | occupied
+    keep = (occupied & ~ndimage.binary_erosion(solid))[tuple(index.T)]
+    cells, inverse = np.unique(
+        np.ravel_multi_index(tuple(index[keep].T), shape), return_inverse=True
+    )
+    counts = np.bincount(inverse).astype(float)
+    centroids = (
+        np.column_stack([np.bincount(inverse, weights=points[keep, k]) for k in range(3)])
+        / counts[:, None]
+    )
+    observed = np.bincount(inverse, weights=(np.flatnonzero(keep) < seen).astype(float))
+    return centroids, np.where(observed > 0.0, 1.0, surface.ESTIMATED_WEIGHT)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(1, 600), st.integers(0, 2**31 - 1), st.floats(0.002, 0.02), st.floats(0, 1))
+def test_surface_cells_are_the_closed_grids_boundary(count, seed, cell, seen_share):
+    """The compiled grid gives the cells and centroids of scipy's closing and erosion, exactly."""
+    rng = np.random.default_rng(seed)
+    # A solid block with a hole and scattered points: inner cells, closed gaps and lone cells.
+    block = rng.uniform(0.0, 0.05, size=(count, 3))
+    block = block[np.linalg.norm(block - 0.025, axis=1) > 0.01]
+    points = np.ascontiguousarray(np.vstack([block, rng.uniform(-0.02, 0.08, size=(5, 3))]))
+    seen = int(seen_share * len(points))
+    low = points.min(axis=0) - 2 * cell
+    centroids, weights = surface._surface_cells(points, low, cell, seen, 2)
+    expected_centroids, expected_weights = _surface_cells_by_ndimage(points, cell, seen)
+    assert np.array_equal(centroids, expected_centroids)
+    assert np.array_equal(weights, expected_weights)
+
+
 def test_normals_of_a_sphere_point_away_from_its_centre():
     rng = np.random.default_rng(1)
     directions = rng.normal(size=(3000, 3))

@@ -14,12 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray
+from mvbb_ros.arrays import column_min, column_span, FloatArray
 from mvbb_ros.geometry.cells import cell_grid, cell_start, column_keys
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
 #: An estimated (not observed) point counts this much towards a pad's support.
 ESTIMATED_WEIGHT = 0.25
@@ -211,6 +210,108 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     return normals
 
 
+@nb.njit('boolean[:, :, ::1](boolean[:, :, ::1])', cache=True)
+def _eroded(grid: np.ndarray) -> np.ndarray:
+    """Return `grid` eroded by the six face neighbours (border cells are not kept)."""
+    nx, ny, nz = grid.shape
+    out = np.zeros((nx, ny, nz), dtype=np.bool_)
+    for x in range(1, nx - 1):
+        for y in range(1, ny - 1):
+            for z in range(1, nz - 1):
+                out[x, y, z] = (
+                    grid[x, y, z]
+                    and grid[x - 1, y, z]
+                    and grid[x + 1, y, z]
+                    and grid[x, y - 1, z]
+                    and grid[x, y + 1, z]
+                    and grid[x, y, z - 1]
+                    and grid[x, y, z + 1]
+                )
+    return out
+
+
+@nb.njit(
+    'Tuple((float64[:, :], float64[:]))(float64[:, :], float64[:], float64, int64, int64)',
+    cache=True,
+)
+def _surface_cells(
+    points: FloatArray, low: FloatArray, cell: float, seen: int, margin: int
+) -> tuple[FloatArray, FloatArray]:
+    """
+    Return the surface cells' centroids and weights (see :func:`surface_model`).
+
+    The points are binned in cubic cells from `low` (at least `margin` >= 2 cells inside the
+    grid); the occupancy grid is closed (dilated, then eroded, by the six face neighbours;
+    outside the grid counts as empty), and a cell with points is on the surface when it or one
+    of its face neighbours is not in the eroded solid. Cells come in C order of their grid
+    index; each centroid is the mean of its points taken in their order; the weight is 1 when
+    one of the first `seen` points is in the cell, else :data:`ESTIMATED_WEIGHT`.
+    """
+    count = points.shape[0]
+    index = np.empty((count, 3), dtype=np.int64)
+    top = np.zeros(3, dtype=np.int64)
+    for i in range(count):
+        for k in range(3):
+            value = np.int64(np.floor((points[i, k] - low[k]) / cell))
+            index[i, k] = value
+            top[k] = max(top[k], value)
+    nx, ny, nz = top[0] + margin + 1, top[1] + margin + 1, top[2] + margin + 1
+    occupied = np.zeros((nx, ny, nz), dtype=np.bool_)
+    for i in range(count):
+        occupied[index[i, 0], index[i, 1], index[i, 2]] = True
+    # Closing: dilate by the face neighbours, then erode (outside the grid is empty).
+    dilated = occupied.copy()
+    for x in range(nx):
+        for y in range(ny):
+            for z in range(nz):
+                if occupied[x, y, z]:
+                    if x > 0:
+                        dilated[x - 1, y, z] = True
+                    if x + 1 < nx:
+                        dilated[x + 1, y, z] = True
+                    if y > 0:
+                        dilated[x, y - 1, z] = True
+                    if y + 1 < ny:
+                        dilated[x, y + 1, z] = True
+                    if z > 0:
+                        dilated[x, y, z - 1] = True
+                    if z + 1 < nz:
+                        dilated[x, y, z + 1] = True
+    solid = _eroded(dilated)
+    for x in range(nx):
+        for y in range(ny):
+            for z in range(nz):
+                solid[x, y, z] = solid[x, y, z] or occupied[x, y, z]
+    inside = _eroded(solid)
+    # Surface cells in C order of their grid index, then their points in order.
+    ids = np.full((nx, ny, nz), -1, dtype=np.int64)
+    cells = 0
+    for x in range(nx):
+        for y in range(ny):
+            for z in range(nz):
+                if occupied[x, y, z] and not inside[x, y, z]:
+                    ids[x, y, z] = cells
+                    cells += 1
+    sums = np.zeros((cells, 3))
+    counts = np.zeros(cells)
+    observed = np.zeros(cells)
+    for i in range(count):
+        c = ids[index[i, 0], index[i, 1], index[i, 2]]
+        if c < 0:
+            continue
+        for k in range(3):
+            sums[c, k] += points[i, k]
+        counts[c] += 1.0
+        if i < seen:
+            observed[c] += 1.0
+    weights = np.empty(cells)
+    for c in range(cells):
+        for k in range(3):
+            sums[c, k] /= counts[c]
+        weights[c] = 1.0 if observed[c] > 0.0 else ESTIMATED_WEIGHT
+    return sums, weights
+
+
 def surface_model(
     points: ArrayLike,
     *,
@@ -242,30 +343,7 @@ def surface_model(
     if cells > MAX_GRID_CELLS:
         cell *= (cells / MAX_GRID_CELLS) ** (1.0 / 3.0)
     low = column_min(pts) - margin * cell
-    index = np.floor((pts - low) / cell).astype(np.int64)
-    shape = tuple(int(v) for v in column_max(index) + margin + 1)
-    occupied = np.zeros(shape, dtype=bool)
-    occupied[index[:, 0], index[:, 1], index[:, 2]] = True
-    solid = ndimage.binary_closing(occupied) | occupied
-    inside = ndimage.binary_erosion(solid)
-    on_surface = occupied & ~inside
-    keep = on_surface[index[:, 0], index[:, 1], index[:, 2]]
-    flat = np.ravel_multi_index(tuple(index[keep].T), shape)
-    cells_kept, inverse = np.unique(flat, return_inverse=True)
-    counts = np.bincount(inverse, minlength=len(cells_kept)).astype(np.float64)
-    centroids = (
-        np.column_stack(
-            [
-                np.bincount(inverse, weights=pts[keep, k], minlength=len(cells_kept))
-                for k in range(3)
-            ]
-        )
-        / counts[:, None]
-    )
-    seen_cells = np.bincount(
-        inverse, weights=(np.flatnonzero(keep) < seen).astype(np.float64), minlength=len(counts)
-    )
-    weights = np.where(seen_cells > 0.0, 1.0, ESTIMATED_WEIGHT)
+    centroids, weights = _surface_cells(pts, low, float(cell), seen, margin)
     normals = _pca_normals(np.ascontiguousarray(centroids), NORMAL_CELLS * cell)
     floor = -math.inf
     if up is not None:
