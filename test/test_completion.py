@@ -199,3 +199,26 @@ def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
         tried = shares(order)
         np.testing.assert_array_equal(tried.min(axis=1), in_order.min(axis=1))
         np.testing.assert_array_equal(np.argmin(tried, axis=1), np.argmin(in_order, axis=1))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 300), st.integers(0, 2**31 - 1))
+def test_the_outline_is_scipys_closing_and_minimum_filter(rows, cols, count, seed):
+    """The raster's compiled mask and nearest ranges are scipy.ndimage's, exactly."""
+    from mvbb_ros.geometry import raster
+    from scipy import ndimage
+
+    rng = np.random.default_rng(seed)
+    index = np.column_stack([rng.integers(0, rows, count), rng.integers(0, cols, count)])
+    index[rng.random(count) < 0.1] = -1  # points outside the raster
+    ranges = rng.uniform(0.3, 2.0, count)
+    mask, near = raster._outline(index, ranges, rows, cols)
+    seen = index[:, 0] >= 0
+    covered = np.zeros((rows, cols), dtype=bool)
+    covered[index[seen, 0], index[seen, 1]] = True
+    expected = np.full((rows, cols), np.inf)
+    np.minimum.at(expected, (index[seen, 0], index[seen, 1]), ranges[seen])
+    assert np.array_equal(
+        mask, ndimage.binary_dilation(ndimage.binary_closing(covered, iterations=2))
+    )
+    assert np.array_equal(near, ndimage.minimum_filter(expected, size=3))

@@ -26,7 +26,6 @@ from mvbb_ros.arrays import (
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
 #: Raster cells per point spacing: a cell holds one or two points, so the outline has no holes.
 CELLS_PER_SPACING = 1.5
@@ -225,6 +224,64 @@ def _cells(
     return index, ranges
 
 
+@nb.njit('boolean[:, ::1](boolean[:, ::1], boolean)', cache=True)
+def _grown(grid: BoolArray, grow: bool) -> BoolArray:
+    """
+    Return `grid` dilated (`grow`) or eroded by the four edge neighbours.
+
+    Outside the grid counts as empty: a border cell is never kept by an erosion.
+    """
+    rows, cols = grid.shape
+    out = np.zeros((rows, cols), dtype=np.bool_)
+    for r in range(rows):
+        for c in range(cols):
+            up = grid[r - 1, c] if r > 0 else False
+            down = grid[r + 1, c] if r + 1 < rows else False
+            left = grid[r, c - 1] if c > 0 else False
+            right = grid[r, c + 1] if c + 1 < cols else False
+            if grow:
+                out[r, c] = grid[r, c] or up or down or left or right
+            else:
+                out[r, c] = grid[r, c] and up and down and left and right
+    return out
+
+
+@nb.njit(
+    'Tuple((boolean[:, ::1], float64[:, ::1]))(int64[:, :], float64[:], int64, int64)',
+    cache=True,
+)
+def _outline(
+    index: IndexArray, ranges: FloatArray, rows: int, cols: int
+) -> tuple[BoolArray, FloatArray]:
+    """
+    Return the raster's mask and nearest ranges from the points' cells (-1: outside).
+
+    The mask is the covered cells closed twice (two dilations, two erosions by the edge
+    neighbours), then dilated once; the nearest range of a cell is the least range of the
+    points in it and its eight neighbours (+inf where there are none).
+    """
+    covered = np.zeros((rows, cols), dtype=np.bool_)
+    least = np.full((rows, cols), np.inf)
+    for i in range(index.shape[0]):
+        row = index[i, 0]
+        if row < 0:
+            continue
+        col = index[i, 1]
+        covered[row, col] = True
+        least[row, col] = min(least[row, col], ranges[i])
+    mask = _grown(_grown(covered, True), True)
+    mask = _grown(_grown(_grown(mask, False), False), True)
+    near = np.empty((rows, cols))
+    for r in range(rows):
+        for c in range(cols):
+            value = np.inf
+            for dr in range(max(r - 1, 0), min(r + 2, rows)):
+                for dc in range(max(c - 1, 0), min(c + 2, cols)):
+                    value = min(value, least[dr, dc])
+            near[r, c] = value
+    return mask, near
+
+
 def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> ViewRaster:
     """
     Rasterise `points` as seen from `viewpoint`, in cells 1.5 point spacings wide.
@@ -263,13 +320,7 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
     shape = np.ceil((column_max(tangent) - origin) / cell).astype(np.int64) + margin + 1
     rows, cols = int(shape[0]), int(shape[1])
     index, ranges = _cells(pts, eye, frame, origin, cell, rows, cols)
-    seen = index[:, 0] >= 0
-    covered = np.zeros((rows, cols), dtype=bool)
-    covered[index[seen, 0], index[seen, 1]] = True
-    mask = ndimage.binary_dilation(ndimage.binary_closing(covered, iterations=2))
-    near = np.full((rows, cols), np.inf)
-    np.minimum.at(near, (index[seen, 0], index[seen, 1]), ranges[seen])
-    near = ndimage.minimum_filter(near, size=3)
+    mask, near = _outline(index, ranges, rows, cols)
     oblique = _oblique_ranges(mask, near, cell, GRAZING_SLOPE, margin)
     return ViewRaster(eye, frame, origin, cell, mask, near, oblique)
 
