@@ -284,7 +284,7 @@ def _surface_cells(
                 solid[x, y, z] = solid[x, y, z] or occupied[x, y, z]
     inside = _eroded(solid)
     # Surface cells in C order of their grid index, then their points in order.
-    ids = np.full((nx, ny, nz), -1, dtype=np.int64)
+    ids = np.full((nx, ny, nz), -1, dtype=np.int32)  # at most MAX_GRID_CELLS cells
     cells = 0
     for x in range(nx):
         for y in range(ny):
