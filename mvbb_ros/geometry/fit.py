@@ -201,18 +201,19 @@ def fit_kernel(
         extents (3,), in the units and frame of the points.
     """
     count = points.shape[0]
-    low = np.empty(3)
-    high = np.empty(3)
-    for k in range(3):
-        low[k] = points[0, k]
-        high[k] = points[0, k]
+    # Bounds in scalars (registers): the passes over every point are a third of a part fit.
+    low0 = high0 = points[0, 0]
+    low1 = high1 = points[0, 1]
+    low2 = high2 = points[0, 2]
     for i in range(1, count):
-        for k in range(3):
-            value = points[i, k]
-            if value < low[k]:
-                low[k] = value
-            elif value > high[k]:
-                high[k] = value
+        low0 = min(low0, points[i, 0])
+        high0 = max(high0, points[i, 0])
+        low1 = min(low1, points[i, 1])
+        high1 = max(high1, points[i, 1])
+        low2 = min(low2, points[i, 2])
+        high2 = max(high2, points[i, 2])
+    low = np.array([low0, low1, low2])
+    high = np.array([high0, high1, high2])
     origin = np.empty(3)
     for k in range(3):
         origin[k] = 0.5 * (low[k] + high[k])
@@ -254,17 +255,27 @@ def fit_kernel(
     pca = _symmetric_eigen(covariance)
     # Every point in the PCA frame, and its box there.
     local = np.empty((count, 3))
-    local_low = np.full(3, np.inf)
-    local_high = np.full(3, -np.inf)
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    p00, p01, p02 = pca[0, 0], pca[0, 1], pca[0, 2]
+    p10, p11, p12 = pca[1, 0], pca[1, 1], pca[1, 2]
+    p20, p21, p22 = pca[2, 0], pca[2, 1], pca[2, 2]
+    l0 = l1 = l2 = np.inf
+    h0 = h1 = h2 = -np.inf
     for i in range(count):
-        d0 = (points[i, 0] - origin[0]) * pre * inverse
-        d1 = (points[i, 1] - origin[1]) * pre * inverse
-        d2 = (points[i, 2] - origin[2]) * pre * inverse
-        for k in range(3):
-            value = d0 * pca[0, k] + d1 * pca[1, k] + d2 * pca[2, k]
-            local[i, k] = value
-            local_low[k] = min(local_low[k], value)
-            local_high[k] = max(local_high[k], value)
+        d0 = (points[i, 0] - o0) * pre * inverse
+        d1 = (points[i, 1] - o1) * pre * inverse
+        d2 = (points[i, 2] - o2) * pre * inverse
+        v0 = d0 * p00 + d1 * p10 + d2 * p20
+        v1 = d0 * p01 + d1 * p11 + d2 * p21
+        v2 = d0 * p02 + d1 * p12 + d2 * p22
+        local[i, 0] = v0
+        local[i, 1] = v1
+        local[i, 2] = v2
+        l0, h0 = min(l0, v0), max(h0, v0)
+        l1, h1 = min(l1, v1), max(h1, v1)
+        l2, h2 = min(l2, v2), max(h2, v2)
+    local_low = np.array([l0, l1, l2])
+    local_high = np.array([h0, h1, h2])
     spans = np.empty(3)
     for k in range(3):
         spans[k] = local_high[k] - local_low[k]
@@ -390,15 +401,24 @@ def _final_box(
     count = frames.shape[0]
     box_low = np.full((count, 3), np.inf)
     box_high = np.full((count, 3), -np.inf)
-    for i in range(local.shape[0]):
-        x = local[i, 0]
-        y = local[i, 1]
-        z = local[i, 2]
-        for j in range(count):
-            for k in range(3):
-                value = x * frames[j, 0, k] + y * frames[j, 1, k] + z * frames[j, 2, k]
-                box_low[j, k] = min(box_low[j, k], value)
-                box_high[j, k] = max(box_high[j, k], value)
+    for j in range(count):  # one frame at a time, its bounds in scalars (registers)
+        f00, f01, f02 = frames[j, 0, 0], frames[j, 0, 1], frames[j, 0, 2]
+        f10, f11, f12 = frames[j, 1, 0], frames[j, 1, 1], frames[j, 1, 2]
+        f20, f21, f22 = frames[j, 2, 0], frames[j, 2, 1], frames[j, 2, 2]
+        l0 = l1 = l2 = np.inf
+        h0 = h1 = h2 = -np.inf
+        for i in range(local.shape[0]):
+            x = local[i, 0]
+            y = local[i, 1]
+            z = local[i, 2]
+            v0 = x * f00 + y * f10 + z * f20
+            v1 = x * f01 + y * f11 + z * f21
+            v2 = x * f02 + y * f12 + z * f22
+            l0, h0 = min(l0, v0), max(h0, v0)
+            l1, h1 = min(l1, v1), max(h1, v1)
+            l2, h2 = min(l2, v2), max(h2, v2)
+        box_low[j, 0], box_low[j, 1], box_low[j, 2] = l0, l1, l2
+        box_high[j, 0], box_high[j, 1], box_high[j, 2] = h0, h1, h2
     # Volumes compared at unit scale (world volumes of huge clouds overflow).
     best = -1
     volume = 1.0
