@@ -192,6 +192,7 @@ def _place_hand(
     pad_high = -inf
     for iteration in range(4):
         if iteration > 0:
+            previous = first
             first = inf
             for j in range(count):
                 # Selects, not branches: the points come in space order, not along the approach.
@@ -199,6 +200,13 @@ def _place_hand(
             if first == inf:
                 status = HAND_MISSED if reach == inf else HAND_BEYOND_REACH
                 return status, first, tip, center, low, high, pad_low, pad_high
+            if first == previous:
+                # The same tip: the fingers pass what they passed (most hands stop here).
+                moved = 0.5 * (low + high) - center
+                center += moved
+                if abs(moved) <= 1e-12 * (1.0 + half):
+                    break
+                continue
         tip = first + depth
         if tip > reach:
             return HAND_BEYOND_REACH, first, tip, center, low, high, pad_low, pad_high
@@ -259,6 +267,7 @@ def _evaluate(
     near_u = np.empty(count)
     near_v = np.empty(count)
     near_k = np.empty(count, dtype=np.int64)
+    window = np.empty(count, dtype=np.int64)
     deepest = np.max(depths)
     contact = np.empty(6)
     normal = np.empty(6)
@@ -280,22 +289,24 @@ def _evaluate(
             across[k] = (xs[k] - o[0]) * s0 + (ys[k] - o[1]) * s1 + (zs[k] - o[2]) * s2
         # The band, and the first contact of a hand centred on the line (the same for every
         # finger depth).
+        # Compactions here go without branches (a branch on where a point lies mispredicts:
+        # the points come in space order): each index is written at the end of the list,
+        # which moves on only for a point that belongs.
         n = 0
-        first_centred = inf
         for k in range(count):
-            if abs(across[k]) > pad / 2.0:
-                continue
+            band_k[n] = k
+            n += abs(across[k]) <= pad / 2.0
+        first_centred = inf
+        for j in range(n):
+            k = band_k[j]
             dx = xs[k] - o[0]
             dy = ys[k] - o[1]
             dz = zs[k] - o[2]
             u = dx * a[0] + dy * a[1] + dz * a[2]
             v = dx * c[0] + dy * c[1] + dz * c[2]
-            band_u[n] = u
-            band_v[n] = v
-            band_k[n] = k
-            n += 1
-            if abs(v) <= half and u < first_centred:
-                first_centred = u
+            band_u[j] = u
+            band_v[j] = v
+            first_centred = min(first_centred, u if abs(v) <= half else inf)
         if first_centred == inf:
             continue
         # The hand reaches little of the band: the points up to `reach` along the approach, in
@@ -304,11 +315,10 @@ def _evaluate(
         reach = first_centred + deepest + params[P_REACH_SLACK]
         m = 0
         for j in range(n):
-            if band_u[j] <= reach:
-                near_u[m] = band_u[j]
-                near_v[m] = band_v[j]
-                near_k[m] = band_k[j]
-                m += 1
+            near_u[m] = band_u[j]
+            near_v[m] = band_v[j]
+            near_k[m] = band_k[j]
+            m += band_u[j] <= reach
         best = -1.0
         for di in range(depths.shape[0]):
             depth = depths[di]
@@ -331,10 +341,14 @@ def _evaluate(
             normal[:] = 0.0
             patch[:] = 0.0
             support[:] = 0.0
+            # The points the pads reach, in band order (so the sums below add in that order).
+            reached = 0
             for j in range(used):
                 u = used_u[j]
-                if u < tip - pad or u > tip:
-                    continue
+                window[reached] = j
+                reached += u >= tip - pad and u <= tip
+            for q in range(reached):
+                j = window[q]
                 v = used_v[j]
                 k = used_k[j]
                 for side in range(2):
