@@ -22,8 +22,8 @@ from builtin_interfaces.msg import Time
 from mvbb_ros.ros.encode import create_cloud_xyz
 import rclpy
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from ros_graph import l_shape_points  # test/ is on the path of a script run from it
 from sensor_msgs.msg import PointCloud2
+from shapes import l_shape_points  # test/ is on the path of a script run from it
 
 POLICIES = {'reliable': ReliabilityPolicy.RELIABLE, 'best_effort': ReliabilityPolicy.BEST_EFFORT}
 

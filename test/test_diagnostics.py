@@ -13,7 +13,8 @@ from mvbb_ros.ros.diagnostics import ReceptionLog
 from mvbb_ros.ros.encode import create_cloud_xyz
 import pytest
 from rclpy.parameter import Parameter
-from ros_graph import Graph, l_shape_points
+from ros_graph import Graph
+from shapes import l_shape_points
 from test_node import _set_parameter
 
 pytestmark = pytest.mark.ros

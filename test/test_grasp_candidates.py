@@ -24,9 +24,10 @@ from mvbb_ros.ros.messages import (
 )
 import numpy as np
 import pytest
-from ros_graph import Graph, l_shape_points
+from ros_graph import Graph
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointField
+from shapes import l_shape_points
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 

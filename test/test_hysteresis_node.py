@@ -9,8 +9,9 @@ from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_graph import Graph, l_shape_points
+from ros_graph import Graph
 from scipy.spatial.transform import Rotation
+from shapes import l_shape_points
 
 
 class _Pose:

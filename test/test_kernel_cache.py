@@ -130,7 +130,7 @@ _ROUND_TRIP = """
 import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from ros_graph import l_shape_points
+from shapes import l_shape_points
 from mvbb_ros import kernels
 from mvbb_ros.cli.synthetic import segmented_object_cloud
 from mvbb_ros.pipeline.process import process_points

@@ -118,7 +118,7 @@ from mvbb_ros import kernels
 from mvbb_ros.cli.synthetic import segmented_object_cloud
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
-from ros_graph import l_shape_points
+from shapes import l_shape_points
 
 kernels.warm_up()
 def signatures():

@@ -15,8 +15,9 @@ from builtin_interfaces.msg import Time
 from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
-from ros_graph import Graph, l_shape_points
+from ros_graph import Graph
 from sensor_msgs.msg import PointCloud2, PointField
+from shapes import l_shape_points
 from visualization_msgs.msg import Marker
 
 pytestmark = pytest.mark.ros

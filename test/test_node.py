@@ -20,9 +20,10 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from ros_graph import Graph, l_shape_points
+from ros_graph import Graph
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2
+from shapes import l_shape_points
 from visualization_msgs.msg import Marker, MarkerArray
 
 pytestmark = pytest.mark.ros

@@ -25,7 +25,8 @@ from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from ros_graph import Graph, l_shape_points
+from ros_graph import Graph
+from shapes import l_shape_points
 
 
 def _hostile_values(spec) -> list:

@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import math
 
-from hypothesis import assume, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from mvbb_ros import grasp_hypotheses, PipelineSettings, process_points
 from mvbb_ros.evaluation.grasp_judge import same_grasp
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.contacts import (
-    _evaluate,
-    _parameters,
-    _place_hand,
     COL_CONTACT_WIDTH,
     COL_MARGIN,
     COL_QUALITY,
@@ -20,9 +17,6 @@ from mvbb_ros.geometry.contacts import (
     COL_WIDTH,
     evaluate_lines,
     GraspView,
-    HAND_BEYOND_REACH,
-    P_REACH_SLACK,
-    REACH_SLACK,
     RefinementSettings,
 )
 from mvbb_ros.geometry.refine import refine_grasps
@@ -30,8 +24,8 @@ from mvbb_ros.geometry.surface import surface_model
 from mvbb_ros.pipeline.process import GraspMemory
 import numpy as np
 import pytest
-from ros_graph import l_shape_points
 from scipy.spatial.transform import Rotation
+from shapes import l_shape_points
 
 ON = RefinementSettings(enabled=True)
 CELL = 0.004
@@ -107,82 +101,6 @@ def test_an_antipodal_grasp_across_a_box_holds_with_the_width_of_the_box(box):
     # The width the object needs along the closing line: the box's extent (up to a cell).
     assert straight[COL_WIDTH] == pytest.approx(extents[0], abs=1.5 * CELL)
     assert straight[COL_CONTACT_WIDTH] == pytest.approx(extents[0], abs=1.5 * CELL)
-
-
-@settings(max_examples=300, deadline=None)
-@given(
-    st.lists(st.tuples(st.floats(0.0, 0.2), st.floats(-0.15, 0.15)), min_size=1, max_size=60),
-    st.floats(0.005, 0.03),
-    st.floats(0.0, 0.03),
-)
-def test_the_hand_placed_on_the_points_within_reach_is_the_one_placed_on_the_whole_band(
-    band, depth, slack
-):
-    """Placed on the band's points up to `reach`, the hand is the whole band's, or says so."""
-    half, pad = 0.04, 0.02
-    along = np.array([u for u, _ in band])
-    across = np.array([v for _, v in band])
-    centred = along[np.abs(across) <= half]
-    assume(len(centred))
-    first_centred = float(centred.min())
-    reach = first_centred + depth + slack
-    near = along <= reach
-    whole = _place_hand(along, across, len(along), first_centred, depth, half, pad, math.inf)
-    placed = _place_hand(
-        along[near], across[near], int(near.sum()), first_centred, depth, half, pad, reach
-    )
-    if placed[0] == HAND_BEYOND_REACH:
-        return  # the kernel then places the hand on the whole band
-    assert placed == whole
-
-
-@settings(max_examples=25, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.floats(0.0, 0.03), st.booleans())
-def test_the_hand_placed_on_the_band_near_the_first_contact_is_the_one_on_the_whole_band(
-    seed, opening_slack, up
-):
-    """The kernel searches the band near the first contact; the result is the whole band's."""
-    rng = np.random.default_rng(seed)
-    rotation = Rotation.random(random_state=seed).as_matrix()
-    points = l_shape_points(seed, count=3000) @ rotation.T
-    model = surface_model(points, cell=0.005, up=(0.0, 0.0, 1.0) if up else None)
-    # Along the L's box axes, tilted a little: many such lines hold, some do not.
-    axis = rng.integers(0, 3, 200)
-    approaches = rotation[:, axis].T * rng.choice([-1.0, 1.0], (200, 1))
-    closings = rotation[:, (axis + rng.integers(1, 3, 200)) % 3].T
-    tilt = Rotation.from_rotvec(rng.normal(scale=0.15, size=(200, 3)))
-    approaches, closings = tilt.apply(approaches), tilt.apply(closings)
-    origins = points[rng.integers(0, len(points), 200)] - 0.1 * approaches
-    view = GraspView(
-        gripper_max_width=0.06 + opening_slack,
-        standoff=0.05,
-        up=np.array([0.0, 0.0, 1.0]) if up else None,
-    )
-    up_vector = np.zeros(3) if view.up is None else view.up
-    depths = ON.finger_depth * np.array(ON.depth_fractions)
-    rows = []
-    for slack in (0.0, REACH_SLACK * ON.pad_size, math.inf):
-        params = _parameters(ON, view, model.cell, model.floor)
-        params[P_REACH_SLACK] = slack
-        rows.append(
-            _evaluate(
-                model.points,
-                model.normals,
-                model.weights,
-                origins,
-                approaches,
-                closings,
-                depths,
-                params,
-                up_vector,
-            )
-        )
-    assert rows[1][:, COL_VALID].any(), 'some lines hold'
-    np.testing.assert_array_equal(rows[0], rows[2])
-    np.testing.assert_array_equal(rows[1], rows[2])
-    np.testing.assert_array_equal(
-        rows[1], evaluate_lines(model, origins, approaches, closings, ON, view)
-    )
 
 
 @settings(max_examples=20, deadline=None)
