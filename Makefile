@@ -4,11 +4,12 @@
 VENV := .venv
 BIN := $(VENV)/bin
 
-# The tests of the compiled kernels, which `make compat` runs on Ubuntu 24.04's numba 0.59,
-# numpy 1.26 and scipy 1.11 (requirements-compat.txt); tests needing Open3D or rclpy skip there.
+# The tests of the compiled kernels (and of the array helpers they share), which `make compat`
+# runs on Ubuntu 24.04's numba 0.59, numpy 1.26 and scipy 1.11 (requirements-compat.txt); tests
+# needing Open3D or rclpy skip there.
 COMPAT_TESTS := test/test_decode.py test/test_filtering.py test/test_outliers.py \
 	test/test_objects.py test/test_completion.py test/test_fit.py test/test_split.py \
-	test/test_surface.py
+	test/test_surface.py test/test_arrays.py
 
 .PHONY: setup demo test compat lint bench clean
 

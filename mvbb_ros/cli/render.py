@@ -34,6 +34,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure, SubFigure
 from matplotlib.lines import Line2D
 from matplotlib.text import Annotation
+from mvbb_ros.arrays import cross
 from mvbb_ros.cli.atomic import atomic_path
 from mvbb_ros.geometry.box import EDGES
 from mvbb_ros.geometry.fit import minimum_bounding_box
@@ -218,7 +219,7 @@ def _view_rotation(elevation_deg: float, azimuth_deg: float) -> FloatArray:
     el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
     towards = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
     right = np.array([-math.sin(az), math.cos(az), 0.0])
-    return np.stack([right, np.cross(towards, right), towards])
+    return np.stack([right, cross(towards, right), towards])
 
 
 def _frame_rotation(
@@ -248,7 +249,7 @@ def _frame_rotation(
     for k in range(2):  # deterministic signs: each axis's largest component positive
         if axes[np.argmax(np.abs(axes[:, k])), k] < 0.0:
             axes[:, k] = -axes[:, k]
-    axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
+    axes[:, 2] = cross(axes[:, 0], axes[:, 1])
     return axes
 
 

@@ -28,7 +28,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 import math
 
-from mvbb_ros.arrays import Float32Array, FloatArray, IntArray
+from mvbb_ros.arrays import cross, Float32Array, FloatArray, IntArray
 from mvbb_ros.evaluation.camera import (
     BACKGROUND,
     camera_intrinsics,
@@ -102,7 +102,7 @@ def _tube(centerline: ArrayLike, radius: float, segments: int) -> o3d.geometry.T
     tangent = np.gradient(path, axis=0)
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     binormal = np.array([0.0, 1.0, 0.0])
-    normal = np.cross(binormal, tangent)
+    normal = cross(binormal, tangent)
     angles = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
     offsets = (
         np.cos(angles)[None, :, None] * normal[:, None, :]

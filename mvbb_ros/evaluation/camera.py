@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import math
 from typing import Protocol, runtime_checkable, TypeAlias
 
-from mvbb_ros.arrays import BoolArray, Float32Array, FloatArray, IntArray
+from mvbb_ros.arrays import BoolArray, cross, Float32Array, FloatArray, IntArray
 import numpy as np
 from numpy.typing import ArrayLike
 import open3d as o3d
@@ -108,11 +108,11 @@ def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) 
     if np.linalg.norm(forward) < 1e-12:
         raise ValueError('look_at: eye and target coincide')
     forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(up, dtype=np.float64))
+    right = cross(forward, np.asarray(up, dtype=np.float64))
     if np.linalg.norm(right) < 1e-9:
         raise ValueError('look_at: view direction is parallel to the up vector')
     right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
+    down = cross(forward, right)
     pose = np.eye(4)
     pose[:3, :3] = np.column_stack([right, down, forward])
     pose[:3, 3] = eye_w

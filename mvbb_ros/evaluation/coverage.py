@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from mvbb_ros.arrays import BoolArray, FloatArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray
 from mvbb_ros.geometry.box import Box
 import numpy as np
 from numpy.typing import ArrayLike
@@ -59,7 +59,7 @@ def sample_surface(
     """
     corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.intp)]
     areas = np.linalg.norm(
-        np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
+        cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
     )
     if not areas.sum() > 0.0:
         raise ValueError('sample_surface: the mesh has no area')

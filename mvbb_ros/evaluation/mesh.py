@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.arrays import cross, FloatArray, IndexArray
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 import open3d as o3d
@@ -69,13 +69,13 @@ def center_of_mass(vertices: ArrayLike, triangles: ArrayLike) -> tuple[FloatArra
     origin = verts[np.unique(tris)].mean(axis=0)
     a, b, c = (verts[tris[:, k]] - origin for k in range(3))
     if is_closed(tris):
-        six_volumes = np.einsum('ij,ij->i', a, np.cross(b, c))
+        six_volumes = np.einsum('ij,ij->i', a, cross(b, c))
         total = float(six_volumes.sum())
         scale = float(np.abs(six_volumes).sum())
         if scale > 0.0 and abs(total) > 1e-12 * scale:
             centre = (six_volumes[:, None] * (a + b + c)).sum(axis=0) / (4.0 * total)
             return origin + centre, 'solid'
-    areas = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    areas = np.linalg.norm(cross(b - a, c - a), axis=1)
     if not areas.sum() > 0.0:
         raise ValueError('center_of_mass: every triangle has zero area')
     centre = (areas[:, None] * (a + b + c) / 3.0).sum(axis=0) / areas.sum()
@@ -147,7 +147,7 @@ class GraspTarget:
         self.vertices: FloatArray = verts[used]
         self.triangles: NDArray[np.int64] = remap.reshape(-1, 3).astype(np.int64)
         a, b, c = (self.vertices[self.triangles[:, k]] for k in range(3))
-        normals = np.cross(b - a, c - a)
+        normals = cross(b - a, c - a)
         lengths = np.linalg.norm(normals, axis=1, keepdims=True)
         self.triangle_normals: FloatArray = np.divide(
             normals, lengths, out=np.zeros_like(normals), where=lengths > 0.0

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import time
 from typing import Any
 
-from mvbb_ros.arrays import BoolArray, FloatArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray
 from mvbb_ros.evaluation.gripper import ParallelJawGripper
 from mvbb_ros.evaluation.mesh import GraspTarget
 from mvbb_ros.evaluation.wrench import (
@@ -159,7 +159,7 @@ def grasp_axes(grasps: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatAr
         or np.any(np.linalg.norm(closing, axis=1) == 0.0)
     ):
         raise ValueError('every grasp needs an approach and a closing direction not along it')
-    return positions, approach, closing, np.cross(approach, closing)
+    return positions, approach, closing, cross(approach, closing)
 
 
 def evaluate_grasps(

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mvbb_ros.arrays import FloatArray
+from mvbb_ros.arrays import cross, FloatArray
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import gammaln
@@ -80,7 +80,7 @@ def spherical_grasps(
         [np.cos(theta) * np.cos(phi), np.cos(theta) * np.sin(phi), -np.sin(theta)]
     )
     approach = -u
-    turned = np.cross(approach, e_theta)
+    turned = cross(approach, e_theta)
     closing = np.cos(psi)[:, None] * e_theta + np.sin(psi)[:, None] * turned
     centre = np.asarray(center, dtype=np.float64).reshape(3)
     return SphericalGrasps(

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 import zlib
 
-from mvbb_ros.arrays import Float32Array, FloatArray, IndexArray
+from mvbb_ros.arrays import cross, Float32Array, FloatArray, IndexArray
 from mvbb_ros.evaluation.camera import (
     camera_intrinsics,
     DEFAULT_HEIGHT,
@@ -111,12 +111,12 @@ def rotation_to_z(up: ArrayLike) -> FloatArray:
         raise ValueError('rotation_to_z: the up direction is zero')
     axis = axis / norm
     z = np.array([0.0, 0.0, 1.0])
-    cross = np.cross(axis, z)
-    sin, cos = float(np.linalg.norm(cross)), float(axis @ z)
+    turn = cross(axis, z)
+    sin, cos = float(np.linalg.norm(turn)), float(axis @ z)
     if sin < 1e-12:
         # Already up, or upside down: half a turn about x.
         return np.eye(3) if cos > 0.0 else np.diag([1.0, -1.0, -1.0])
-    return Rotation.from_rotvec(cross / sin * math.atan2(sin, cos)).as_matrix()
+    return Rotation.from_rotvec(turn / sin * math.atan2(sin, cos)).as_matrix()
 
 
 @dataclass(eq=False)

@@ -10,7 +10,7 @@ distance from the origin to its nearest facet when the origin is inside, V its 6
 
 from __future__ import annotations
 
-from mvbb_ros.arrays import BoolArray, FloatArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import ConvexHull, QhullError
@@ -71,7 +71,7 @@ def _tangents(normals: FloatArray, references: FloatArray) -> tuple[FloatArray, 
         )
         t1[weak] = helper - np.einsum('ij,ij->i', helper, n)[:, None] * n
     t1 = unit_rows(t1)
-    return t1, np.cross(normals, t1)
+    return t1, cross(normals, t1)
 
 
 def contact_wrenches(
@@ -116,10 +116,10 @@ def contact_wrenches(
         np.cos(angles)[:, None] * t1[..., None, :] + np.sin(angles)[:, None] * t2[..., None, :]
     )  # (..., K, m, 3)
     arms = (pts - centre) / scale
-    torques = np.cross(arms[..., None, :], forces)
+    torques = cross(arms[..., None, :], forces)
     parts = [np.concatenate([forces, torques], axis=-1)]
     if torsion > 0.0:
-        base = np.cross(arms, nrm)
+        base = cross(arms, nrm)
         twist = (torsion / scale) * nrm
         for sign in (1.0, -1.0):
             parts.append(np.concatenate([nrm, base + sign * twist], axis=-1)[..., None, :])

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import math
 from typing import get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, column_span, FloatArray, IndexArray
+from mvbb_ros.arrays import BoolArray, column_span, cross, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
 from mvbb_ros.geometry.raster import (
@@ -243,16 +243,16 @@ def _candidate_normals(
         for axis in axes:  # looking straight down: any vertical plane will do
             preferred = preferred if preferred is not None else _horizontal(axis, up)
         assert preferred is not None
-        side = np.cross(up, preferred)
+        side = cross(up, preferred)
         turn = math.radians(MIRROR_TURN_DEG)
         for angle in np.arange(-turn, turn + 1e-9, step):
             normals.append(math.cos(angle) * preferred + math.sin(angle) * side)
         extra = [_horizontal(axis, up) for axis in axes]
     else:
         preferred = view
-        first = np.cross(view, np.eye(3)[int(np.argmin(np.abs(view)))])
+        first = cross(view, np.eye(3)[int(np.argmin(np.abs(view)))])
         first /= np.linalg.norm(first)
-        second = np.cross(view, first)
+        second = cross(view, first)
         for polar in np.arange(0.0, math.radians(MIRROR_CONE_DEG) + 1e-9, step):
             ring = max(1, round(2.0 * math.pi * math.sin(polar) / step))
             for azimuth in np.linspace(0.0, 2.0 * math.pi, ring, endpoint=False):
@@ -382,9 +382,9 @@ def _completion_size(
     if up is None:
         local = both @ np.asarray(axes).T
         return float(np.prod(column_span(local)))
-    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    first = cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
     first /= np.linalg.norm(first)
-    flat = np.column_stack([both @ first, both @ np.cross(up, first)])
+    flat = np.column_stack([both @ first, both @ cross(up, first)])
     return _hull_area(flat)
 
 
@@ -565,9 +565,9 @@ def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) ->
     more than :data:`MAX_RASTER_SIDE` columns along a side); each column's highest point is the
     top of a column of samples every `step` (the object stands on something below it).
     """
-    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    first = cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
     first /= np.linalg.norm(first)
-    across, along, height = points @ first, points @ np.cross(up, first), points @ up
+    across, along, height = points @ first, points @ cross(up, first), points @ up
     widest = max(float(np.ptp(across)), float(np.ptp(along)))
     tops = _column_tops(across, along, height, max(step, widest / MAX_RASTER_SIDE))
     down = np.repeat(-up[None, :], len(tops), axis=0)
@@ -663,8 +663,8 @@ def complete_view(
         # seen surface run wider than it, into the box's slack (a 3 cm plate seen end-on from
         # 0.5 m came out 1 cm thicker, 1.7 times its volume). The slack stays along the normal
         # and up, where the far side and the bottom are estimates that tend to fall short.
-        across = fill @ np.cross(unit_up, plane.normal)
-        width = both @ np.cross(unit_up, plane.normal)
+        across = fill @ cross(unit_up, plane.normal)
+        width = both @ cross(unit_up, plane.normal)
         fill = fill[(across >= width.min()) & (across <= width.max())]
     parts = [both, fill]
     if unit_up is not None:

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, FloatArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray
 from mvbb_ros.geometry import box as box_geometry
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import Decomposition
@@ -261,12 +261,12 @@ def boxes_intersect(
     half_b = np.asarray(half_extents_b, dtype=np.float64)
     offset = np.asarray(center_b, dtype=np.float64) - np.asarray(center_a, dtype=np.float64)
     axes_a, axes_b = np.broadcast_arrays(axes_a, axes_b)
-    cross = np.cross(axes_a[..., :, None, :], axes_b[..., None, :, :])
-    cross = cross.reshape(*cross.shape[:-3], 9, 3)
-    norms = np.linalg.norm(cross, axis=-1, keepdims=True)
+    edges = cross(axes_a[..., :, None, :], axes_b[..., None, :, :])  # edge-edge axes
+    edges = edges.reshape(*edges.shape[:-3], 9, 3)
+    norms = np.linalg.norm(edges, axis=-1, keepdims=True)
     usable = norms[..., 0] > 1e-9
-    cross = cross / np.where(usable[..., None], norms, 1.0)
-    candidates = np.concatenate([axes_a, axes_b, cross], axis=-2)  # (..., 15, 3)
+    edges = edges / np.where(usable[..., None], norms, 1.0)
+    candidates = np.concatenate([axes_a, axes_b, edges], axis=-2)  # (..., 15, 3)
     valid = np.concatenate([np.ones(usable.shape[:-1] + (6,), dtype=bool), usable], axis=-1)
     reach_a = np.einsum(
         '...lk,...k->...l', np.abs(candidates @ np.swapaxes(axes_a, -1, -2)), half_a
@@ -426,9 +426,9 @@ def gripper_quaternions(
     approach = np.asarray(approaches, dtype=np.float64).reshape(-1, 3)
     closing = np.asarray(closings, dtype=np.float64).reshape(-1, 3)
     if approach_axis == 'z':
-        columns = (np.cross(closing, approach), closing, approach)
+        columns = (cross(closing, approach), closing, approach)
     else:
-        columns = (approach, closing, np.cross(approach, closing))
+        columns = (approach, closing, cross(approach, closing))
     if not len(approach):
         return np.zeros((0, 4))
     quaternions = Rotation.from_matrix(np.stack(columns, axis=-1)).as_quat()
@@ -516,7 +516,7 @@ def _hypotheses(
     approach = -normals
     edge_axis = (face_axis + 1) % 3
     edge = np.swapaxes(rotations, 1, 2)[:, edge_axis, :]  # roll 0 closing, (B, 6, 3)
-    turned = np.cross(approach, edge)  # edge turned by +90 degrees about approach
+    turned = cross(approach, edge)  # edge turned by +90 degrees about approach
     roll_rad = np.deg2rad(np.array(ROLLS_DEG, dtype=np.float64))
     cos_roll = np.rint(np.cos(roll_rad))  # exactly 1, 0, -1, 0
     sin_roll = np.rint(np.sin(roll_rad))
@@ -567,9 +567,9 @@ def _hypotheses(
 
     # Poses.
     if settings.approach_axis == 'z':
-        columns = (np.cross(closing, approach_per_roll), closing, approach_per_roll)
+        columns = (cross(closing, approach_per_roll), closing, approach_per_roll)
     else:
-        columns = (approach_per_roll, closing, np.cross(approach_per_roll, closing))
+        columns = (approach_per_roll, closing, cross(approach_per_roll, closing))
     gripper_rotations = np.stack(columns, axis=-1)  # (B, 6, 4, 3, 3)
     selected = np.argwhere(keep)  # lexicographic: box, face, roll
     quaternions = np.empty((len(selected), 4))

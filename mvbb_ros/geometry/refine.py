@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
 
-from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.contacts import (
     COL_CENTER,
@@ -183,13 +183,13 @@ def _box_candidates(
         pairs = _frames(box, up, views[index])
         approaches = np.array([approach for approach, _ in pairs])  # (P, 3)
         closings = np.array([closing for _, closing in pairs])
-        sides = np.cross(approaches, closings)
+        sides = cross(approaches, closings)
         # (P, R, 3): each closing rolled about its approach, and the side axis of each roll.
         turned = (
             np.cos(rolls)[None, :, None] * closings[:, None, :]
             + np.sin(rolls)[None, :, None] * sides[:, None, :]
         )
-        across = np.cross(approaches[:, None, :], turned)
+        across = cross(approaches[:, None, :], turned)
         reach = np.abs(across @ box.rotation) @ box.extents  # (P, R) extent across the pads
         offsets = slides * np.maximum(reach - pad, 0.0)[:, :, None]  # (P, R, S)
         origins = box.center + offsets[..., None] * across[:, :, None, :]  # (P, R, S, 3)
@@ -262,7 +262,7 @@ def _faces_and_rolls(
         normals = box.face_normals()
         face = np.argmin(approaches[mine] @ normals.T, axis=1)
         edges = box.rotation[:, (face // 2 + 1) % 3].T  # (M, 3)
-        turned = np.cross(-normals[face], edges)
+        turned = cross(-normals[face], edges)
         angle = np.degrees(
             np.arctan2(
                 np.einsum('ij,ij->i', closings[mine], turned),
@@ -395,12 +395,12 @@ def rescore_grasp(
         return None
     approach = np.asarray(grasp.approach, dtype=np.float64)
     closing = np.asarray(grasp.closing, dtype=np.float64)
-    side = np.cross(approach, closing)
+    side = cross(approach, closing)
     rolls = np.deg2rad(np.array(RESCORE_ROLLS))
     turned = np.cos(rolls)[:, None] * closing + np.sin(rolls)[:, None] * side
     offsets = np.array(RESCORE_SLIDES) * settings.pad_size
     origins = np.asarray(grasp.position, dtype=np.float64) + np.repeat(
-        offsets[None, :, None] * np.cross(approach, turned)[:, None, :], 1, axis=0
+        offsets[None, :, None] * cross(approach, turned)[:, None, :], 1, axis=0
     ).reshape(-1, 3)
     closings = np.repeat(turned, len(offsets), axis=0)
     approaches = np.broadcast_to(approach, closings.shape)
@@ -468,7 +468,7 @@ def _neighbours(
     origins: FloatArray, approaches: FloatArray, closings: FloatArray, pad: float
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Return each line's four neighbours (slid both ways, rolled both ways), (4 G, 3) each."""
-    side = np.cross(approaches, closings)
+    side = cross(approaches, closings)
     roll = math.radians(ROBUST_ROLL_DEG)
     shift = ROBUST_SLIDE * pad * side
     out_origins = np.concatenate([origins + shift, origins - shift, origins, origins])

@@ -1,0 +1,35 @@
+"""mvbb_ros/arrays.py: the column reductions and the cross product every layer takes."""
+
+from __future__ import annotations
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from mvbb_ros.arrays import column_max, column_min, column_span, cross
+import numpy as np
+
+finite = st.floats(-1e6, 1e6, allow_nan=False)
+#: Shapes that broadcast against each other, each ending in 3.
+pairs = hnp.mutually_broadcastable_shapes(num_shapes=2, min_dims=0, max_dims=3, max_side=4)
+
+
+@settings(max_examples=60, deadline=None)
+@given(pairs, st.data())
+def test_cross_is_numpys_bit_for_bit_with_its_broadcasting(shapes, data):
+    first, second = (
+        data.draw(hnp.arrays(np.float64, (*shape, 3), elements=finite))
+        for shape in shapes.input_shapes
+    )
+    ours = cross(first, second)
+    numpys = np.cross(first, second)
+    assert ours.shape == numpys.shape
+    np.testing.assert_array_equal(ours, numpys)
+    assert np.array_equal(np.signbit(ours), np.signbit(numpys)), 'signed zeros as numpy'
+
+
+@settings(max_examples=30, deadline=None)
+@given(hnp.arrays(np.float64, st.tuples(st.integers(1, 50), st.integers(1, 4)), elements=finite))
+def test_column_reductions_are_numpys(values):
+    np.testing.assert_array_equal(column_min(values), values.min(axis=0))
+    np.testing.assert_array_equal(column_max(values), values.max(axis=0))
+    np.testing.assert_array_equal(column_span(values), values.max(axis=0) - values.min(axis=0))
