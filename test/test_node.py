@@ -173,9 +173,16 @@ def _console_script(name: str) -> Path:
     return path
 
 
-def test_installed_decomposer_exits_zero_on_sigint():
+@pytest.mark.parametrize(
+    ('arguments', 'says_up_is_unknown'),
+    [([], True), (['--ros-args', '-p', 'up_direction:=[0.0, -0.8, -0.6]'], False)],
+)
+def test_installed_decomposer_exits_zero_on_sigint(arguments, says_up_is_unknown):
+    """It starts, says once what an unknown up direction costs (only then), and stops cleanly."""
+    from mvbb_ros.ros.node import UP_UNKNOWN_HINT
+
     process = subprocess.Popen(
-        [str(_console_script('decomposer'))],
+        [str(_console_script('decomposer')), *arguments],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -184,14 +191,19 @@ def test_installed_decomposer_exits_zero_on_sigint():
     try:
         deadline = time.monotonic() + 60.0
         started = False
+        lines = []
         while time.monotonic() < deadline and not started:
             line = process.stdout.readline()
-            started = 'listening on' in line
+            lines.append(line)
+            started = 'publishing on' in line  # the constructor's last line
             if not line and process.poll() is not None:
                 break
-        assert started, 'the node did not start'
+        assert started, 'the node did not start:\n' + ''.join(lines)
         process.send_signal(signal.SIGINT)
-        assert process.wait(timeout=30) == 0
+        rest, _ = process.communicate(timeout=30)
+        assert process.returncode == 0
+        output = ''.join(lines) + rest
+        assert (output.count(UP_UNKNOWN_HINT) == 1) == says_up_is_unknown, output
     finally:
         if process.poll() is None:
             process.kill()

@@ -161,6 +161,14 @@ def _our_changes(parameters: Sequence[Parameter]) -> dict[str, Any]:
     }
 
 
+#: Said once at start when ``up_direction`` is not set: what the robot loses without it.
+UP_UNKNOWN_HINT = (
+    'up_direction is not set: grasps may approach from below the object and its hidden side '
+    'is a weaker guess; set it from TF (the z axis of the robot base in the cloud frame; '
+    'README, "Setting up_direction")'
+)
+
+
 class DecomposerNode(Node):
     """Decompose each incoming cloud into boxes and grasp poses (see the module docstring)."""
 
@@ -209,6 +217,8 @@ class DecomposerNode(Node):
             self._publish_diagnostics,
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
+        if self._settings.view.up is None:
+            self.get_logger().info(UP_UNKNOWN_HINT)
         self.get_logger().info(
             f'gain_threshold={self._settings.decomposition.gain_threshold}, '
             f'min_points={self._settings.decomposition.min_points}; publishing on '
