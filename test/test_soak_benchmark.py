@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-
-from conftest import REPO_ROOT
+from conftest import load_benchmark
 from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
@@ -16,11 +13,7 @@ MIB = 2**20
 
 @pytest.fixture(scope='module')
 def soak():
-    spec = importlib.util.spec_from_file_location('soak_bench', REPO_ROOT / 'benchmarks/soak.py')
-    module = importlib.util.module_from_spec(spec)
-    sys.modules['soak_bench'] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark('soak')
 
 
 def _figures(soak, memory):

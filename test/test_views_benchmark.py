@@ -2,21 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 
-from conftest import REPO_ROOT, require_shared_data
+from conftest import load_benchmark, require_shared_data
 import pytest
 
 
 @pytest.fixture(scope='module')
 def bench():
-    spec = importlib.util.spec_from_file_location('views_bench', REPO_ROOT / 'benchmarks/views.py')
-    module = importlib.util.module_from_spec(spec)
-    sys.modules['views_bench'] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark('views')
 
 
 @pytest.fixture(scope='module')
