@@ -224,6 +224,11 @@ def box_quaternions(boxes: Sequence[Box]) -> FloatArray:
     """
     if not boxes:
         return np.zeros((0, 4))
-    quaternions = Rotation.from_matrix(np.stack([box.rotation for box in boxes])).as_quat()
+    return rotation_quaternions(np.stack([box.rotation for box in boxes]))
+
+
+def rotation_quaternions(matrices: FloatArray) -> FloatArray:
+    """Return (N, 4) unit quaternions x, y, z, w with w >= 0 of (N, 3, 3) rotations, N >= 1."""
+    quaternions = Rotation.from_matrix(matrices).as_quat()
     quaternions[quaternions[:, 3] < 0.0] *= -1.0
     return quaternions

@@ -431,9 +431,7 @@ def gripper_quaternions(
         columns = (approach, closing, cross(approach, closing))
     if not len(approach):
         return np.zeros((0, 4))
-    quaternions = Rotation.from_matrix(np.stack(columns, axis=-1)).as_quat()
-    quaternions[quaternions[:, 3] < 0.0] *= -1.0
-    return quaternions
+    return box_geometry.rotation_quaternions(np.stack(columns, axis=-1))
 
 
 def _tie_rounded(keys: FloatArray) -> FloatArray:
@@ -574,9 +572,7 @@ def _hypotheses(
     selected = np.argwhere(keep)  # lexicographic: box, face, roll
     quaternions = np.empty((len(selected), 4))
     if len(selected):
-        matrices = gripper_rotations[keep]
-        quaternions = Rotation.from_matrix(matrices).as_quat()
-        quaternions[quaternions[:, 3] < 0.0] *= -1.0
+        quaternions = box_geometry.rotation_quaternions(gripper_rotations[keep])
 
     keys = _tie_rounded(_strategy_keys(settings.strategy, boxes, points, view.sensor_origin))
     scores = _normalised(keys)
