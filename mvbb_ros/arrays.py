@@ -1,8 +1,8 @@
 """
 Array type aliases shared by every layer (one place, so a dtype means the same everywhere).
 
-And the column reductions of (N, 3) point arrays that every layer takes (bounds, extents), and
-the cross product.
+And the column reductions of (N, 3) point arrays that every layer takes (bounds, extents), the
+cross product and the axes perpendicular to a direction.
 
 Coordinates are float64 unless a name says otherwise: the decoder keeps float32 clouds as they
 are (:data:`Float32Array`) and the filters return float64.
@@ -69,3 +69,15 @@ def cross(first: ArrayLike, second: ArrayLike) -> FloatArray:
     np.subtract(a[..., 2] * b[..., 0], a[..., 0] * b[..., 2], out=out[..., 1])
     np.subtract(a[..., 0] * b[..., 1], a[..., 1] * b[..., 0], out=out[..., 2])
     return out
+
+
+def perpendicular_axes(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """
+    Return two unit vectors that make a right-handed frame (first, second, axis) with `axis`.
+
+    `axis` is a unit 3-vector; `first` is perpendicular to it and to the coordinate axis it is
+    least along, `second` is ``axis x first``.
+    """
+    first = cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
+    first /= np.linalg.norm(first)
+    return first, cross(axis, first)

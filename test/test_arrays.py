@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.arrays import column_max, column_min, column_span, cross
+from mvbb_ros.arrays import column_max, column_min, column_span, cross, perpendicular_axes
 import numpy as np
 
 finite = st.floats(-1e6, 1e6, allow_nan=False)
@@ -33,3 +33,13 @@ def test_column_reductions_are_numpys(values):
     np.testing.assert_array_equal(column_min(values), values.min(axis=0))
     np.testing.assert_array_equal(column_max(values), values.max(axis=0))
     np.testing.assert_array_equal(column_span(values), values.max(axis=0) - values.min(axis=0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(hnp.arrays(np.float64, 3, elements=st.floats(-1.0, 1.0)).filter(lambda v: v @ v > 1e-6))
+def test_perpendicular_axes_make_a_right_handed_frame_with_the_axis(direction):
+    axis = direction / np.linalg.norm(direction)
+    first, second = perpendicular_axes(axis)
+    frame = np.stack([first, second, axis])
+    np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(frame) > 0.0

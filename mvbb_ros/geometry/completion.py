@@ -31,7 +31,14 @@ from dataclasses import dataclass
 import math
 from typing import get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, column_span, cross, FloatArray, IndexArray
+from mvbb_ros.arrays import (
+    BoolArray,
+    column_span,
+    cross,
+    FloatArray,
+    IndexArray,
+    perpendicular_axes,
+)
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
 from mvbb_ros.geometry.raster import (
@@ -250,9 +257,7 @@ def _candidate_normals(
         extra = [_horizontal(axis, up) for axis in axes]
     else:
         preferred = view
-        first = cross(view, np.eye(3)[int(np.argmin(np.abs(view)))])
-        first /= np.linalg.norm(first)
-        second = cross(view, first)
+        first, second = perpendicular_axes(view)
         for polar in np.arange(0.0, math.radians(MIRROR_CONE_DEG) + 1e-9, step):
             ring = max(1, round(2.0 * math.pi * math.sin(polar) / step))
             for azimuth in np.linspace(0.0, 2.0 * math.pi, ring, endpoint=False):
@@ -382,9 +387,8 @@ def _completion_size(
     if up is None:
         local = both @ np.asarray(axes).T
         return float(np.prod(column_span(local)))
-    first = cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
-    first /= np.linalg.norm(first)
-    flat = np.column_stack([both @ first, both @ cross(up, first)])
+    first, second = perpendicular_axes(up)
+    flat = np.column_stack([both @ first, both @ second])
     return _hull_area(flat)
 
 
@@ -565,9 +569,8 @@ def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) ->
     more than :data:`MAX_RASTER_SIDE` columns along a side); each column's highest point is the
     top of a column of samples every `step` (the object stands on something below it).
     """
-    first = cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
-    first /= np.linalg.norm(first)
-    across, along, height = points @ first, points @ cross(up, first), points @ up
+    first, second = perpendicular_axes(up)
+    across, along, height = points @ first, points @ second, points @ up
     widest = max(float(np.ptp(across)), float(np.ptp(along)))
     tops = _column_tops(across, along, height, max(step, widest / MAX_RASTER_SIDE))
     down = np.repeat(-up[None, :], len(tops), axis=0)

@@ -20,9 +20,9 @@ from mvbb_ros.arrays import (
     column_max,
     column_min,
     column_span,
-    cross,
     FloatArray,
     IndexArray,
+    perpendicular_axes,
 )
 import numba as nb
 import numpy as np
@@ -299,9 +299,8 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
     if not length > 0.0:
         raise ValueError('the points surround the viewpoint: there is no viewing direction')
     axis /= length
-    side = cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
-    side /= np.linalg.norm(side)
-    frame = np.stack([side, cross(axis, side), axis])
+    side, second = perpendicular_axes(axis)
+    frame = np.stack([side, second, axis])
     relative = (pts - eye) @ frame.T
     ahead = relative[:, 2] > 0.0
     if not np.any(ahead):
