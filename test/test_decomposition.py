@@ -256,6 +256,61 @@ def test_best_first_leaves_no_split_that_passes_at_the_end():
         assert node.gain >= 0.98
 
 
+def fitting_every_part(points: np.ndarray, **options) -> mvbb_ros.Decomposition:
+    """Decompose with both parts of every tested split fitted (no refusal on one part alone)."""
+    from unittest import mock
+
+    from mvbb_ros.geometry import decomposition
+
+    best_split = decomposition._best_split
+
+    def both_parts(points, draft, settings, fit_parts, others=None):
+        return best_split(points, draft, settings, fit_parts)
+
+    with mock.patch.object(decomposition, '_best_split', both_parts):
+        return mvbb_ros.decompose(points, **options)
+
+
+def assert_same_tree(fast: mvbb_ros.Decomposition, full: mvbb_ros.Decomposition) -> int:
+    """
+    Check that two decompositions are the same tree; return how many refused gains differ.
+
+    A refused split's recorded Theta* may be the lower bound of its larger part's box alone: at
+    least the threshold, at most the Theta* of both parts' boxes.
+    """
+    assert len(fast.nodes) == len(full.nodes)
+    bounded = 0
+    for quick, whole in zip(fast.nodes, full.nodes, strict=True):
+        np.testing.assert_array_equal(quick.box.center, whole.box.center)
+        np.testing.assert_array_equal(quick.box.rotation, whole.box.rotation)
+        np.testing.assert_array_equal(quick.box.extents, whole.box.extents)
+        np.testing.assert_array_equal(quick.point_indices, whole.point_indices)
+        assert quick.stop_reason == whole.stop_reason and quick.children == whole.children
+        cuts = [None if n.tested_cut is None else n.tested_cut.to_dict() for n in (quick, whole)]
+        assert cuts[0] == cuts[1]
+        if quick.gain != whole.gain:
+            assert quick.stop_reason == 'gain'
+            assert fast.settings.gain_threshold <= quick.gain <= whole.gain
+            bounded += 1
+    return bounded
+
+
+@settings(max_examples=40, deadline=None)
+@given(points=clouds(), options=decomposition_options)
+def test_refusing_on_the_larger_part_alone_changes_no_box(points, options):
+    assert_same_tree(mvbb_ros.decompose(points, **options), fitting_every_part(points, **options))
+
+
+def test_a_split_refused_on_its_larger_part_alone_is_the_one_refused_with_both():
+    rng = np.random.default_rng(8)
+    points = np.vstack([l_shape(rng)[0], solid([6, 0, 0], [7, 2, 2], 1000, rng)])
+    points += rng.normal(0.0, 0.02, points.shape)  # a rough surface: shaving it gains little
+    fast = mvbb_ros.decompose(points, gain_threshold=0.98)
+    assert_valid(fast, points)
+    # The bound refused some splits here; each is also refused with both parts fitted.
+    assert assert_same_tree(fast, fitting_every_part(points, gain_threshold=0.98)) > 0
+
+
 def test_rescoring_never_makes_the_first_split_worse():
     rng = np.random.default_rng(6)
     points, _ = l_shape(rng)
