@@ -115,34 +115,44 @@ def _moments(
     reach: int,
     radius: float,
 ) -> tuple[int, float, float, float, float, float, float, float, float, float]:
-    """Return the count, sums and second-moment sums of the offsets within `radius` of point i."""
+    """
+    Return the count, sums and second-moment sums of the offsets within `radius` of point i.
+
+    Every point of the cells is added, weighted 1 inside the radius and 0 outside: whether a
+    point is inside comes in short runs, and a branch on it mispredicted (the sums are the same
+    bit for bit: adding a zero to a sum that is never -0 changes nothing).
+    """
     squared = radius * radius
     n = 0
     sx = sy = sz = 0.0
     sxx = sxy = sxz = syy = syz = szz = 0.0
     count = points.shape[0]
+    px, py, pz = points[i, 0], points[i, 1], points[i, 2]
     for dx in range(-reach, reach + 1):
         for dy in range(-reach, reach + 1):
             first, last = column_keys(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2], reach, span)
-            for k in range(cell_start(sorted_keys, first), count):
-                if sorted_keys[k] > last:
-                    break
+            start = cell_start(sorted_keys, first)
+            end = start
+            while end < count and sorted_keys[end] <= last:
+                end += 1
+            for k in range(start, end):
                 j = order[k]
-                x = points[j, 0] - points[i, 0]
-                y = points[j, 1] - points[i, 1]
-                z = points[j, 2] - points[i, 2]
-                if x * x + y * y + z * z > squared:
-                    continue
-                n += 1
-                sx += x
-                sy += y
-                sz += z
-                sxx += x * x
-                sxy += x * y
-                sxz += x * z
-                syy += y * y
-                syz += y * z
-                szz += z * z
+                x = points[j, 0] - px
+                y = points[j, 1] - py
+                z = points[j, 2] - pz
+                inside = x * x + y * y + z * z <= squared
+                weight = 1.0 if inside else 0.0
+                n += 1 if inside else 0
+                wx, wy, wz = weight * x, weight * y, weight * z
+                sx += wx
+                sy += wy
+                sz += wz
+                sxx += wx * x
+                sxy += wx * y
+                sxz += wx * z
+                syy += wy * y
+                syz += wy * z
+                szz += wz * z
     return n, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
 
