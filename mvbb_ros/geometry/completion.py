@@ -28,6 +28,7 @@ views. The hot loops (rasterising, testing mirror planes, sampling rays) are num
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 import math
 from typing import get_args, Literal
 
@@ -242,35 +243,74 @@ def _candidate_normals(
     :return: the normals (K, 3), the preferred normal, and how many of the normals are the
         fan's (the rest are box axes).
     """
-    step = math.radians(MIRROR_STEP_DEG)
-    normals: list[FloatArray] = []
+    rows: list[FloatArray] = []
     extra: list[FloatArray | None]
     if up is not None:
         preferred = _horizontal(view, up)
         for axis in axes:  # looking straight down: any vertical plane will do
             preferred = preferred if preferred is not None else _horizontal(axis, up)
         assert preferred is not None
-        side = cross(up, preferred)
-        turn = math.radians(MIRROR_TURN_DEG)
-        for angle in np.arange(-turn, turn + 1e-9, step):
-            normals.append(math.cos(angle) * preferred + math.sin(angle) * side)
+        cosines, sines = _turn_angles(MIRROR_TURN_DEG, MIRROR_STEP_DEG)
+        rows.append(cosines[:, None] * preferred + sines[:, None] * cross(up, preferred))
         extra = [_horizontal(axis, up) for axis in axes]
     else:
         preferred = view
         first, second = perpendicular_axes(view)
-        for polar in np.arange(0.0, math.radians(MIRROR_CONE_DEG) + 1e-9, step):
-            ring = max(1, round(2.0 * math.pi * math.sin(polar) / step))
-            for azimuth in np.linspace(0.0, 2.0 * math.pi, ring, endpoint=False):
-                across = math.cos(azimuth) * first + math.sin(azimuth) * second
-                normals.append(math.cos(polar) * view + math.sin(polar) * across)
+        polar_cos, polar_sin, azimuth_cos, azimuth_sin = _cone_angles(
+            MIRROR_CONE_DEG, MIRROR_STEP_DEG
+        )
+        across = azimuth_cos[:, None] * first + azimuth_sin[:, None] * second
+        rows.append(polar_cos[:, None] * view + polar_sin[:, None] * across)
         extra = list(axes)
-    fan = len(normals)
+    fan = len(rows[0])
     for axis in extra:
         if axis is not None:
             axis = axis if axis @ preferred >= 0.0 else -axis
             if axis @ preferred >= AXIS_COS:
-                normals.append(axis)
-    return np.array(normals), preferred, fan
+                rows.append(axis[None, :])
+    return np.concatenate(rows), preferred, fan
+
+
+@functools.lru_cache(maxsize=4)
+def _turn_angles(turn_deg: float, step_deg: float) -> tuple[FloatArray, FloatArray]:
+    """Return the cosines and sines of the turns -turn_deg .. turn_deg, step_deg apart."""
+    turn, step = math.radians(turn_deg), math.radians(step_deg)
+    angles = np.arange(-turn, turn + 1e-9, step).tolist()
+    return _frozen([math.cos(a) for a in angles]), _frozen([math.sin(a) for a in angles])
+
+
+@functools.lru_cache(maxsize=4)
+def _cone_angles(
+    cone_deg: float, step_deg: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """
+    Return the cosines and sines of the cone's polar angles and azimuths, one per normal.
+
+    Rings every `step_deg` from the axis out to `cone_deg`, each with as many azimuths as fit
+    `step_deg` apart on it. The math module's cosines, so the normals do not depend on numpy's
+    vectorised trigonometry.
+    """
+    step = math.radians(step_deg)
+    polars: list[float] = []
+    azimuths: list[float] = []
+    for polar in np.arange(0.0, math.radians(cone_deg) + 1e-9, step).tolist():
+        ring = max(1, round(2.0 * math.pi * math.sin(polar) / step))
+        turns = np.linspace(0.0, 2.0 * math.pi, ring, endpoint=False).tolist()
+        polars += [polar] * ring
+        azimuths += turns
+    return (
+        _frozen([math.cos(a) for a in polars]),
+        _frozen([math.sin(a) for a in polars]),
+        _frozen([math.cos(a) for a in azimuths]),
+        _frozen([math.sin(a) for a in azimuths]),
+    )
+
+
+def _frozen(values: list[float]) -> FloatArray:
+    """Return `values` as a read-only array (the cached tables are shared)."""
+    array = np.array(values, dtype=np.float64)
+    array.setflags(write=False)
+    return array
 
 
 def find_mirror_plane(
