@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from ros_graph import Graph
+from shapes import l_shape_points
 from visualization_msgs.msg import Marker
 
 pytestmark = pytest.mark.ros
@@ -82,3 +83,39 @@ def test_decompose_says_why_a_cloud_has_boxes_but_no_grasps(tmp_path, capsys):
     assert 'no grasps: 1 boxes, 0 grasps: gripper_max_width' in report
     assert main(['decompose', str(cloud_file), '--gripper-max-width', '0.3']) == 0
     assert 'no grasps' not in capsys.readouterr().out
+
+
+def test_a_cloud_that_is_not_one_view_is_noted_by_the_cli_and_the_node(tmp_path, capsys):
+    """
+    A cloud all round an object is not one view: the command and the node's diagnostics say so.
+
+    (A model, merged views, or a cloud moved out of its camera's frame without ``viewpoint``:
+    the hidden side is not estimated.) A camera's view gets no such note.
+    """
+    model, view = tmp_path / 'model.npy', tmp_path / 'view.npy'
+    np.save(model, l_shape_points().astype(np.float32))
+    np.save(view, segmented_object_cloud('mug', seed=0))
+    assert main(['decompose', str(model)]) == 0
+    report = capsys.readouterr().out
+    assert 'note: object 0: shape completion skipped, not one view from [0.0, 0.0, 0.0]' in report
+    assert 'is viewpoint the sensor position in the cloud frame?' in report
+    assert main(['decompose', str(view)]) == 0
+    assert 'note:' not in capsys.readouterr().out
+
+    graph = Graph()
+    try:
+        cloud = create_cloud_xyz(np.load(model), frame_id='base_link')
+        graph.publish_until_answered(graph.publisher(), cloud)
+
+        def noted() -> bool:
+            return any(
+                'not one view' in kv.value
+                for array in graph.diagnostics
+                for status in array.status
+                for kv in status.values
+                if kv.key == 'completion_skipped'
+            )
+
+        assert graph.spin_until(noted, timeout_s=15.0)
+    finally:
+        graph.close()

@@ -243,6 +243,8 @@ def print_report(result: PipelineResult, seconds: float, settings: PipelineSetti
         f'completion {settings.view.completion}, {dropped} points dropped) '
         f'in {seconds * 1e3:.1f} ms'
     )
+    for line in result.notes:
+        print(f'note: {line}')
     print(f'{"obj":>3} {"box":>3} {"points":>7}  {"centre":^29}  {"extents":^29}  {"volume":>11}')
     rows = zip(leaves, result.leaf_object_indices, result.leaf_observed_counts, strict=True)
     for index, (box, obj, count) in enumerate(rows):

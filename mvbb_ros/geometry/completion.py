@@ -675,7 +675,7 @@ def complete_view(
     if self_hidden > MAX_SELF_HIDDEN:
         reason = (
             f'not one view from {eye.tolist()}: {100 * self_hidden:.0f} % of the points lie '
-            'behind others'
+            'behind others (is viewpoint the sensor position in the cloud frame?)'
         )
         return CompletedView(pts, len(pts), method, skipped=reason)
     # The observed points' minimum box: the extrusion stops at its far faces, and its axes are

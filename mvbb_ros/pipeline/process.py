@@ -111,6 +111,22 @@ class PipelineResult:
         ]
 
     @property
+    def notes(self) -> list[str]:
+        """
+        Return what to read the boxes with: objects whose hidden side was not estimated.
+
+        A completion asked for but skipped (the points are not one view from the viewpoint: a
+        whole model, merged views, or a cloud transformed without setting ``viewpoint``) leaves
+        boxes fitted to the points as they are, carved into plates on a single view.
+        """
+        return [
+            f'object {item.index}: shape completion skipped, {item.shape.skipped}; its boxes fit '
+            'the points as they are'
+            for item in self.objects
+            if item.shape.skipped is not None
+        ]
+
+    @property
     def total_ms(self) -> float:
         """Return the total processing time in milliseconds."""
         return float(sum(self.timings_ms.values()))

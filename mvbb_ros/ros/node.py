@@ -190,6 +190,7 @@ class DecomposerNode(Node):
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._receptions = ReceptionLog()
         self._warned: dict[str, float] = {}  # warning kind -> when it was last logged
+        self._noted_frames: set[str] = set()  # frames whose result notes were logged
         self._last_cloud: PointCloud2 | None = None
         self._last_result: PipelineResult | None = None
         self._last_error: str | None = None
@@ -364,6 +365,11 @@ class DecomposerNode(Node):
                 self.get_logger().warning(f'{result.warning}; publishing cleared outputs')
         else:
             self._count('clouds_processed', reprocess)
+            if result.notes and frame not in self._noted_frames:
+                # Once per frame: a whole model or merged views are meant to be so (nothing to
+                # estimate); a wrong viewpoint needs telling once.
+                self._noted_frames.add(frame)
+                self.get_logger().warning(f"{'; '.join(result.notes)} (frame '{frame}')")
         self._last_result = result
         self._grasp_memory.remember(frame, result)
         self._publish(cloud, result)
@@ -445,6 +451,8 @@ class DecomposerNode(Node):
             note = empty_grasps_note(result, self._settings)
             if note:
                 values['no_grasps_because'] = note
+            if result.notes:
+                values['completion_skipped'] = '; '.join(result.notes)
         if self._last_error is not None:
             level, message = DiagnosticStatus.ERROR, f'processing failed: {self._last_error}'
         elif result is not None and result.warning is not None:

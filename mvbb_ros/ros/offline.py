@@ -49,7 +49,8 @@ class ProcessedCloud:
     :ivar grasps: grasp poses written.
     :ivar milliseconds: pipeline time (decode, filter, decompose, grasps).
     :ivar note: why the outputs are empty (the node's warning), or which grasp filter removed
-        every grasp when there are boxes but no grasps, or ''.
+        every grasp when there are boxes but no grasps, or which object's hidden side was not
+        estimated (:attr:`~mvbb_ros.pipeline.process.PipelineResult.notes`), or ''.
     """
 
     index: int
@@ -138,7 +139,8 @@ def run_pipeline(
     :param memory: the previous cloud's top grasp (the hysteresis, as in the node), updated
         with this cloud's; None: no memory.
     :return: ``(result, note)``: the pipeline result (None when processing raised) and why the
-        outputs are empty, or why there are boxes but no grasps ('' when neither).
+        outputs are empty, or why there are boxes but no grasps, or the result's notes ('' when
+        none).
     """
     frame = str(cloud.header.frame_id)
     previous = None if memory is None else memory.previous(frame)
@@ -150,7 +152,7 @@ def run_pipeline(
         return None, f'processing failed: {type(error).__name__}: {error}'
     if memory is not None:
         memory.remember(frame, result)
-    return result, result.warning or empty_grasps_note(result, settings)
+    return result, result.warning or empty_grasps_note(result, settings) or '; '.join(result.notes)
 
 
 def _check_output(input_path: Path, output_path: Path, force: bool) -> None:
