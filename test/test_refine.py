@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from conftest import require_shared_data
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mvbb_ros import grasp_hypotheses, PipelineSettings, process_points
@@ -260,3 +261,38 @@ def test_an_empty_input_gives_no_refined_grasps():
     assert refine_grasps([], [], [], [], ON, view).grasps == []
     box = Box(np.zeros(3), np.eye(3), np.full(3, 0.05))
     assert refine_grasps([], [box], [0], [], ON, view).grasps == []
+
+
+def _assert_on_the_box_that_holds_it(result) -> int:
+    """Check each grasp's box holds where it closes (else is the nearest); return how many."""
+    leaves, owners = result.leaves, result.leaf_object_indices
+    for grasp in result.grasps:
+        closes = np.asarray(grasp.position) + grasp.depth * np.asarray(grasp.approach)
+        mine = [i for i, owner in enumerate(owners) if owner == grasp.object_index]
+        local = {i: np.abs(leaves[i].to_local(closes[None, :])[0]) for i in mine}
+        gap = {i: np.linalg.norm(np.maximum(local[i] - leaves[i].half_extents, 0.0)) for i in mine}
+        holding = [i for i in mine if gap[i] <= 1e-9]
+        if holding:
+            assert grasp.box_index in holding, (grasp.box_index, holding)
+        else:
+            assert gap[grasp.box_index] <= min(gap.values()) + 1e-9, (grasp.box_index, gap)
+    return len(result.grasps)
+
+
+def test_a_grasp_is_on_the_box_that_holds_where_it_closes():
+    """
+    A line from one box slides along its approach to the first contact, which may be on another.
+
+    The grasp's box (``box_index``, its face, the strategy's preference) is the box of its
+    object that holds the point where the fingers close.
+    """
+    assert _assert_on_the_box_that_holds_it(process_points(l_shape_points())) > 0
+
+
+def test_on_a_real_scan_the_top_grasp_is_on_the_box_it_closes_in():
+    """On this Kinect box the top lines come from a hidden corner's box and close 17 cm away."""
+    scan = require_shared_data('scans', 'mosd_learn26_obj2.npy')
+    result = process_points(np.load(scan))
+    assert _assert_on_the_box_that_holds_it(result) > 0
+    top = result.grasps[0]
+    assert result.leaf_observed_counts[top.box_index] > 0, 'the top grasp is on a seen box'

@@ -333,6 +333,29 @@ def _frozen(values: ArrayLike) -> FloatArray:
     return out
 
 
+def _holding_boxes(
+    points: FloatArray, objects: IndexArray, boxes: Sequence[Box], box_objects: IndexArray
+) -> IndexArray:
+    """
+    Return, per grasp point (G, 3) of object `objects[g]`, the leaf box of that object holding it.
+
+    A grasp's line comes from one box but slides along its approach to the first contact, which
+    may lie on another box of the object: the grasp belongs to the box its closing point is in
+    (the one it is deepest in where leaves overlap), else to the nearest (distance to the box).
+    Ties go to the lower box index.
+    """
+    fit = np.full((len(points), len(boxes)), -np.inf)
+    for index, box in enumerate(boxes):
+        mine = np.flatnonzero(objects == box_objects[index])
+        if not len(mine):
+            continue
+        local = np.abs(box.to_local(points[mine]))
+        outside = np.linalg.norm(np.maximum(local - box.half_extents, 0.0), axis=1)
+        inside = np.min(box.half_extents - local, axis=1)
+        fit[mine, index] = np.where(outside > 0.0, -outside, inside)
+    return np.argmax(fit, axis=1)
+
+
 def _box_preferences(boxes: Sequence[Box], view: GraspView) -> FloatArray:
     """
     Return each box's preference in [0, 1] under the task strategy, as a ratio to the best box.
@@ -387,7 +410,8 @@ def rescore_grasp(
     stops again at the new first contact, on every object's surface. Where the fingertips
     close must stay within one pad size of where they closed before (an object that moved
     further is grasped anew). The best that holds is returned with the width and score of the
-    new points; its box is the nearest box of its object to its closing point.
+    new points; its box is the box of its object that holds its closing point
+    (:func:`_holding_boxes`).
 
     :return: the re-scored grasp, or None when it is not feasible or does not hold any more.
     """
@@ -436,10 +460,10 @@ def rescore_grasp(
         view,
     )[0]
     tip = origin + row[COL_TIP] * approach + row[COL_CENTER] * closing
-    own = [i for i, obj in enumerate(box_objects) if obj == number]
-    if not own:
+    box_numbers = np.asarray(box_objects, dtype=np.intp)
+    if not np.any(box_numbers == number):
         return None
-    box = min(own, key=lambda i: float(np.linalg.norm(boxes[i].center - tip)))
+    box = int(_holding_boxes(tip[None, :], np.array([number]), boxes, box_numbers)[0])
     preference = _box_preferences(boxes, view)[box]
     score = _score(np.array([row[COL_QUALITY]]), np.array([preference]), settings)
     return _grasps(
@@ -599,6 +623,13 @@ def refine_grasps(
                 model, origins[mine], approaches[mine], closings[mine], settings, view
             )
     valid = np.flatnonzero(rows[:, COL_VALID] > 0.0)
+    # Where each valid grasp closes, and the box of its object that holds that point.
+    closes = (
+        origins[valid]
+        + rows[valid, COL_TIP][:, None] * approaches[valid]
+        + rows[valid, COL_CENTER][:, None] * closings[valid]
+    )
+    box_index[valid] = _holding_boxes(closes, objects[valid], boxes, objects_of_boxes)
     quality = _robust_quality(
         models,
         objects[valid],
@@ -613,12 +644,7 @@ def refine_grasps(
     preference = _box_preferences(boxes, view)[box_index[valid]]
     scores = _score(quality, preference, settings)
     ranked = np.argsort(-scores, kind='stable')
-    order, scores = valid[ranked], scores[ranked]
-    centers = (
-        origins[order]
-        + rows[order, COL_TIP][:, None] * approaches[order]
-        + rows[order, COL_CENTER][:, None] * closings[order]
-    )
+    order, scores, centers = valid[ranked], scores[ranked], closes[ranked]
     limit = view.max_grasps if view.max_grasps > 0 else len(order)
     distinct = _distinct(
         np.ascontiguousarray(centers),
