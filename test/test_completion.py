@@ -222,3 +222,37 @@ def test_the_outline_is_scipys_closing_and_minimum_filter(rows, cols, count, see
         mask, ndimage.binary_dilation(ndimage.binary_closing(covered, iterations=2))
     )
     assert np.array_equal(near, ndimage.minimum_filter(expected, size=3))
+
+
+def leaning_board_view(lean_deg: float, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return the front of a 30 x 25 cm board leaning back by `lean_deg` from vertical, and up.
+
+    Its lower edge stands on the table (world z up); a sensor 0.6 m in front and 0.45 m up
+    sees its front face only, on a grid `SPACING` apart with 1 mm noise (like a laptop's screen).
+    """
+    lean = math.radians(lean_deg)
+    along = np.array([0.0, math.sin(lean), math.cos(lean)])  # up the board, away from the sensor
+    u, v = np.meshgrid(np.arange(-0.15, 0.15, SPACING), np.arange(0.0, 0.25, SPACING))
+    world = u.reshape(-1, 1) * [1.0, 0.0, 0.0] + v.reshape(-1, 1) * along
+    world += np.random.default_rng(seed).normal(scale=0.001, size=world.shape)
+    eye = np.array([0.0, -0.6, 0.45])
+    forward = world.mean(axis=0) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    to_camera = np.stack([right, np.cross(forward, right), forward])
+    return (world - eye) @ to_camera.T, to_camera @ [0.0, 0.0, 1.0]
+
+
+@pytest.mark.parametrize('lean_deg', [15.0, 35.0, 55.0])
+@pytest.mark.parametrize('with_up', [True, False])
+def test_a_leaning_board_seen_from_the_front_stays_a_board(lean_deg, with_up):
+    """One flat face seen says nothing of depth; a vertical mirror would make it a tent."""
+    points, up = leaning_board_view(lean_deg)
+    done = complete_view(points, method='mirror', up=up if with_up else None, spacing=SPACING)
+    seen = minimum_bounding_box(points)
+    assert np.sort(seen.extents)[0] < 0.01, 'the view is a plate'
+    solid = minimum_bounding_box(done.points)
+    assert solid.volume <= 1.5 * seen.volume, 'the solid is the board, not a tent behind it'
+    assert len(done.points) > done.observed, 'its back is estimated: its own box'

@@ -16,7 +16,9 @@ Methods (``Completion``):
   seen, in front of a seen surface or where it saw past the object), then the nearest to the
   sensor. With an up direction the planes are vertical (the object stands on a support) and
   the solid is also filled straight down to its lowest point; without one, planes turned up to
-  35 degrees from the viewing direction are tried.
+  35 degrees from the viewing direction are tried. A view that shows one flat face (a plate:
+  :data:`PLATE_RATIO`) is extruded instead: nothing in it says how deep the object is, and a
+  vertical mirror would stand a leaning screen up as a tent.
 * ``'extrude'``: every observed point is extended away from the viewpoint until it leaves the
   observed points' minimum box.
 * ``'none'``: the observed points alone (the paper).
@@ -94,6 +96,11 @@ COMPACT_SLACK = 1.1
 MAX_SELF_HIDDEN = 0.18
 #: A jump in range of more than this many point spacings along a ray separates two surfaces.
 SURFACE_GAP = 3.0
+#: A view whose observed points' box is at most this thin for its middle extent shows one flat
+#: face (a screen, a board, a book): it is completed by extrusion to that box, not mirrored.
+#: Measured on the shared scans and views: the Kinect laptop's leaning screen 0.073, a flat mOSD
+#: object 0.109, then nothing under 0.25 (``docs/single_views.md``).
+PLATE_RATIO = 0.15
 
 
 @nb.njit(
@@ -625,7 +632,7 @@ class CompletedView:
     :ivar points: (M, 3) the solid: the observed points first, then the estimated ones.
     :ivar observed: how many of :attr:`points` the sensor saw.
     :ivar method: the completion asked for.
-    :ivar plane: the mirror plane (``'mirror'``), else None.
+    :ivar plane: the mirror plane (``'mirror'``, unless the view was a plate), else None.
     :ivar skipped: why nothing was estimated although a completion was asked for, else None.
     """
 
@@ -681,7 +688,10 @@ def complete_view(
     # The observed points' minimum box: the extrusion stops at its far faces, and its axes are
     # the object's likely symmetry directions.
     box = minimum_bounding_box(pts)
-    if method == 'extrude':
+    thin, middle = np.sort(box.extents)[:2]
+    if method == 'extrude' or thin <= PLATE_RATIO * middle:
+        # One flat face seen gives no depth behind it, and a mirror about a vertical plane
+        # would stand a leaning plate up as a tent: a plate keeps its own box.
         estimated = fill_to_box(pts, eye, box, spacing)
         estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
         return CompletedView(np.concatenate([pts, estimated]), len(pts), method)
