@@ -95,10 +95,13 @@ def test_a_cloud_that_is_not_one_view_is_noted_by_the_cli_and_the_node(tmp_path,
     model, view = tmp_path / 'model.npy', tmp_path / 'view.npy'
     np.save(model, l_shape_points().astype(np.float32))
     np.save(view, segmented_object_cloud('mug', seed=0))
-    assert main(['decompose', str(model)]) == 0
+    document = tmp_path / 'model.json'
+    assert main(['decompose', str(model), '--json', str(document)]) == 0
     report = capsys.readouterr().out
     assert 'note: object 0: shape completion skipped, not one view from [0.0, 0.0, 0.0]' in report
     assert 'is viewpoint the sensor position in the cloud frame?' in report
+    skipped = json.loads(document.read_text())['objects'][0]['completion_skipped']
+    assert skipped.startswith('not one view from [0.0, 0.0, 0.0]')
     assert main(['decompose', str(view)]) == 0
     assert 'note:' not in capsys.readouterr().out
 

@@ -276,9 +276,10 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
 
     ``objects``: per object its decomposition's own dict
     (:meth:`~mvbb_ros.geometry.decomposition.Decomposition.to_dict`: the tree, the leaves by
-    node index, each box) with its index, observed point count and completion; ``leaves``: every
-    leaf box in the order grasps number them (``box_index``), with its object, node and observed
-    point count; then the grasps, the filter counts and every parameter in force.
+    node index, each box) with its index, observed point count, completion (and why it was
+    skipped, or None) and mirror plane; ``leaves``: every leaf box in the order grasps number
+    them (``box_index``), with its object, node and observed point count; then the grasps, the
+    filter counts and every parameter in force.
     """
     objects = []
     leaves = []
@@ -289,6 +290,7 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
             index=item.index,
             observed_points=item.shape.observed,
             completion=item.shape.method,
+            completion_skipped=item.shape.skipped,
             mirror_plane=None
             if plane is None
             else {'normal': plane.normal.tolist(), 'point': plane.point.tolist()},
