@@ -2,7 +2,7 @@
 Array type aliases shared by every layer (one place, so a dtype means the same everywhere).
 
 And the column reductions of (N, 3) point arrays that every layer takes (bounds, extents), the
-cross product and the axes perpendicular to a direction.
+cross product, the axes perpendicular to a direction and read-only copies.
 
 Coordinates are float64 unless a name says otherwise: the decoder keeps float32 clouds as they
 are (:data:`Float32Array`) and the filters return float64.
@@ -81,3 +81,10 @@ def perpendicular_axes(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
     first = cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
     first /= np.linalg.norm(first)
     return first, cross(axis, first)
+
+
+def read_only(values: ArrayLike) -> FloatArray:
+    """Return a float64 copy of `values` that cannot be written (shared or cached results)."""
+    out = np.array(values, dtype=np.float64, copy=True)
+    out.setflags(write=False)
+    return out

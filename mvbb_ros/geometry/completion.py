@@ -41,6 +41,7 @@ from mvbb_ros.arrays import (
     FloatArray,
     IndexArray,
     perpendicular_axes,
+    read_only,
 )
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.fit import minimum_bounding_box
@@ -283,7 +284,7 @@ def _turn_angles(turn_deg: float, step_deg: float) -> tuple[FloatArray, FloatArr
     """Return the cosines and sines of the turns -turn_deg .. turn_deg, step_deg apart."""
     turn, step = math.radians(turn_deg), math.radians(step_deg)
     angles = np.arange(-turn, turn + 1e-9, step).tolist()
-    return _frozen([math.cos(a) for a in angles]), _frozen([math.sin(a) for a in angles])
+    return read_only([math.cos(a) for a in angles]), read_only([math.sin(a) for a in angles])
 
 
 @functools.lru_cache(maxsize=4)
@@ -306,18 +307,11 @@ def _cone_angles(
         polars += [polar] * ring
         azimuths += turns
     return (
-        _frozen([math.cos(a) for a in polars]),
-        _frozen([math.sin(a) for a in polars]),
-        _frozen([math.cos(a) for a in azimuths]),
-        _frozen([math.sin(a) for a in azimuths]),
+        read_only([math.cos(a) for a in polars]),
+        read_only([math.sin(a) for a in polars]),
+        read_only([math.cos(a) for a in azimuths]),
+        read_only([math.sin(a) for a in azimuths]),
     )
-
-
-def _frozen(values: list[float]) -> FloatArray:
-    """Return `values` as a read-only array (the cached tables are shared)."""
-    array = np.array(values, dtype=np.float64)
-    array.setflags(write=False)
-    return array
 
 
 def find_mirror_plane(

@@ -405,9 +405,8 @@ def _best_split(
         larger = 0 if len(parts[0]) >= len(parts[1]) else 1
         first = fit_part(np.take(points, parts[larger], axis=0), seed=settings.seed)
         if limit == 1 and others is not None:
-            bounded = _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
-            if not _theta_star(draft, bounded.volume, others) < settings.gain_threshold:
-                return bounded
+            if not _theta_star(draft, first.volume, others) < settings.gain_threshold:
+                return _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
         second = fit_part(np.take(points, parts[1 - larger], axis=0), seed=settings.seed)
         boxes = (first, second) if larger == 0 else (second, first)
         split = _Split(cut=cut, parts=parts, boxes=boxes)

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, cross, FloatArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray, read_only
 from mvbb_ros.geometry import box as box_geometry
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import Decomposition
@@ -51,12 +51,6 @@ DEFAULT_MAX_APPROACH_ELEVATION_DEG = 45.0
 #: perpendicular to the viewing direction, away from the sensor: the object's centre is
 #: estimated from what the sensor saw, which lies towards the sensor.
 FAR_SIDE_MARGIN_DEG = 3.0
-
-
-def _readonly(values: ArrayLike) -> FloatArray:
-    out = np.array(values, dtype=np.float64, copy=True)
-    out.setflags(write=False)
-    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -584,10 +578,10 @@ def _hypotheses(
         box_i, face_i, roll_i = (int(v) for v in selected[row])
         grasps.append(
             Grasp(
-                position=_readonly(positions[box_i, face_i, roll_i]),
-                quaternion=_readonly(quaternions[row]),
-                approach=_readonly(approach[box_i, face_i]),
-                closing=_readonly(closing[box_i, face_i, roll_i]),
+                position=read_only(positions[box_i, face_i, roll_i]),
+                quaternion=read_only(quaternions[row]),
+                approach=read_only(approach[box_i, face_i]),
+                closing=read_only(closing[box_i, face_i, roll_i]),
                 width=float(widths[box_i, face_i, roll_i]),
                 box_index=box_i,
                 face=face_i,

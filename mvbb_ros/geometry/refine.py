@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
 
-from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray
+from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.contacts import (
     COL_CENTER,
@@ -39,7 +39,6 @@ from mvbb_ros.geometry.grasps import FAR_SIDE_MARGIN_DEG, Grasp, gripper_quatern
 from mvbb_ros.geometry.surface import SurfaceModel
 import numba as nb
 import numpy as np
-from numpy.typing import ArrayLike
 
 #: Slides of the grasp centre over the face, as fractions of the face's extent across the pads.
 SLIDES: tuple[float, ...] = (-0.3, -0.15, 0.0, 0.15, 0.3)
@@ -287,15 +286,15 @@ def _grasps(
     view: GraspView,
 ) -> list[Grasp]:
     """Return the grasps of evaluated rows (valid ones), in the given order."""
-    quaternions = _frozen(gripper_quaternions(approaches, closings, view.approach_axis))
+    quaternions = read_only(gripper_quaternions(approaches, closings, view.approach_axis))
     faces, rolls = _faces_and_rolls(boxes, box_index, approaches, closings)
     # Whole columns at once; each grasp holds read-only rows of these arrays.
-    positions = _frozen(
+    positions = read_only(
         origins
         + rows[:, COL_CENTER, None] * closings
         + (rows[:, COL_FIRST, None] - view.standoff) * approaches
     )
-    approaches, closings = _frozen(approaches), _frozen(closings)
+    approaches, closings = read_only(approaches), read_only(closings)
     widths = np.minimum(rows[:, COL_WIDTH] + settings.width_margin, view.gripper_max_width)
     depths = view.standoff + rows[:, COL_DEPTH]
     return [
@@ -325,12 +324,6 @@ def _grasps(
             )
         )
     ]
-
-
-def _frozen(values: ArrayLike) -> FloatArray:
-    out = np.array(values, dtype=np.float64)
-    out.setflags(write=False)
-    return out
 
 
 def _holding_boxes(
