@@ -5,8 +5,16 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.arrays import column_max, column_min, column_span, cross, perpendicular_axes
+from mvbb_ros.arrays import (
+    column_max,
+    column_min,
+    column_span,
+    cross,
+    perpendicular_axes,
+    read_only,
+)
 import numpy as np
+import pytest
 
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 #: Shapes that broadcast against each other, each ending in 3.
@@ -43,3 +51,14 @@ def test_perpendicular_axes_make_a_right_handed_frame_with_the_axis(direction):
     frame = np.stack([first, second, axis])
     np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(frame) > 0.0
+
+
+def test_read_only_is_a_float_copy_that_cannot_be_written():
+    source = np.array([[1, 2, 3]], dtype=np.int32)
+    frozen = read_only(source)
+    assert frozen.dtype == np.float64 and not frozen.flags.writeable
+    np.testing.assert_array_equal(frozen, source)
+    source[0, 0] = 7
+    assert frozen[0, 0] == 1.0, 'a copy, not a view'
+    with pytest.raises(ValueError):
+        frozen[0, 0] = 5.0
