@@ -249,6 +249,195 @@ def _unlink(head: np.ndarray, following: np.ndarray, facet: int, point: int) -> 
         q = following[q]
 
 
+@nb.njit
+def _scratch(capacity: int) -> tuple:
+    """Return the work arrays of :func:`_expand` for `capacity` facets."""
+    return (
+        np.empty(capacity, dtype=np.int64),
+        np.empty(3 * capacity, dtype=np.int64),
+        np.empty(3 * capacity, dtype=np.int64),
+        np.empty(3 * capacity, dtype=np.int64),
+        np.empty((3 * capacity, 4)),
+    )
+
+
+@nb.njit
+def _expand(
+    points: np.ndarray,
+    eps: float,
+    inner_x: float,
+    inner_y: float,
+    inner_z: float,
+    corners: np.ndarray,
+    neighbours: np.ndarray,
+    planes: np.ndarray,
+    alive: np.ndarray,
+    head: np.ndarray,
+    farthest: np.ndarray,
+    top: np.ndarray,
+    tested: np.ndarray,
+    seen: np.ndarray,
+    following: np.ndarray,
+    vertex_mark: np.ndarray,
+    vertex_edge: np.ndarray,
+    visible: np.ndarray,
+    horizon_from: np.ndarray,
+    horizon_to: np.ndarray,
+    horizon_out: np.ndarray,
+    new_planes: np.ndarray,
+    facets: int,
+    current: int,
+    stamp: int,
+) -> tuple[int, int, int, int]:
+    """
+    Add the farthest outside point of each facet in turn (quickhull's loop; see the module).
+
+    Works in the arrays it is given and never replaces one (a rebound array costs numba a
+    reference count update at every use in the loop, which was nearly half of a hull's time).
+    The facet arrays hold ``corners.shape[0]`` facets, `visible` as many, the horizon arrays
+    three times as many (a horizon edge is an edge of a seen facet).
+
+    :return: the facet count, the facet to look at next and the visit stamp; then 0 when every
+        outside set is empty, or the facet capacity to grow to before calling again.
+    """
+    while current < facets:
+        f = current
+        if not alive[f] or head[f] < 0:
+            current += 1
+            continue
+        eye = farthest[f]
+        stamp += 1
+        # The facets the eye sees: a breadth-first search from f through visible neighbours.
+        visible[0] = f
+        seen_count = 1
+        tested[f] = stamp
+        seen[f] = stamp
+        i = 0
+        while i < seen_count:
+            g = visible[i]
+            i += 1
+            for e in range(3):
+                h = neighbours[g, e]
+                if tested[h] != stamp:
+                    tested[h] = stamp
+                    if _height(points, eye, planes, h) > -eps:
+                        seen[h] = stamp
+                        visible[seen_count] = h
+                        seen_count += 1
+        # The horizon: edges of seen facets whose neighbour is not seen.
+        edges = 0
+        for i in range(seen_count):
+            g = visible[i]
+            for e in range(3):
+                h = neighbours[g, e]
+                if seen[h] != stamp:
+                    horizon_from[edges] = corners[g, e]
+                    horizon_to[edges] = corners[g, (e + 1) % 3]
+                    horizon_out[edges] = h
+                    edges += 1
+        # It must be one simple cycle, and every new facet must have a normal.
+        usable = edges >= 3
+        if usable:
+            for e in range(edges):
+                v = horizon_from[e]
+                if vertex_mark[v] == stamp:
+                    usable = False
+                    break
+                vertex_mark[v] = stamp
+                vertex_edge[v] = e
+        if usable:
+            e = 0
+            for step in range(edges):
+                v = horizon_to[e]
+                if vertex_mark[v] != stamp:
+                    usable = False
+                    break
+                e = vertex_edge[v]
+                if e == 0 and step < edges - 1:
+                    usable = False
+                    break
+            if e != 0:
+                usable = False
+        if usable:
+            for e in range(edges):
+                if not _plane(points, horizon_from[e], horizon_to[e], eye, new_planes, e):
+                    usable = False
+                    break
+                # The tetrahedron's centroid is inside: a new facet must face away from it.
+                height = (
+                    new_planes[e, 0] * inner_x
+                    + new_planes[e, 1] * inner_y
+                    + new_planes[e, 2] * inner_z
+                    - new_planes[e, 3]
+                )
+                if not height < 0.0:
+                    usable = False
+                    break
+        if not usable:
+            # Rounding made the seen region ragged: drop the eye (within rounding of the hull).
+            _unlink(head, following, f, eye)
+            farthest[f] = -1
+            top[f] = 0.0
+            q = head[f]
+            while q >= 0:
+                height = _height(points, q, planes, f)
+                if farthest[f] < 0 or height > top[f]:
+                    top[f] = height
+                    farthest[f] = q
+                q = following[q]
+            continue
+        if facets + edges > corners.shape[0]:
+            # No room for the fan: the caller grows the arrays and calls again (this facet's
+            # search is then repeated, with the same outcome).
+            return facets, current, stamp, 2 * (facets + edges)
+        # A fan of new facets from the horizon to the eye.
+        for e in range(edges):
+            n = facets + e
+            u = horizon_from[e]
+            v = horizon_to[e]
+            corners[n, 0] = u
+            corners[n, 1] = v
+            corners[n, 2] = eye
+            for k in range(4):
+                planes[n, k] = new_planes[e, k]
+            h = horizon_out[e]
+            neighbours[n, 0] = h
+            for k in range(3):
+                if corners[h, k] == v and corners[h, (k + 1) % 3] == u:
+                    neighbours[h, k] = n
+            after = facets + vertex_edge[v]
+            neighbours[n, 1] = after
+            neighbours[after, 2] = n
+            alive[n] = True
+            head[n] = -1
+            farthest[n] = -1
+            top[n] = 0.0
+            tested[n] = 0
+            seen[n] = 0
+        # Hand the seen facets' points to the new facets (or drop them: they are inside).
+        for i in range(seen_count):
+            g = visible[i]
+            alive[g] = False
+            q = head[g]
+            head[g] = -1
+            while q >= 0:
+                following_q = following[q]
+                if q != eye:
+                    for e in range(edges):
+                        n = facets + e
+                        height = _height(points, q, planes, n)
+                        if height > eps:
+                            following[q] = head[n]
+                            head[n] = q
+                            if farthest[n] < 0 or height > top[n]:
+                                top[n] = height
+                                farthest[n] = q
+                            break
+                q = following_q
+        facets += edges
+    return facets, current, stamp, 0
+
+
 @nb.njit(cache=True)
 def quickhull_kernel(points: np.ndarray, tolerance: float) -> tuple:
     """
@@ -332,165 +521,54 @@ def quickhull_kernel(points: np.ndarray, tolerance: float) -> tuple:
                     farthest[f] = q
                 break
 
-    visible = np.empty(16, dtype=np.int64)
-    horizon_from = np.empty(16, dtype=np.int64)
-    horizon_to = np.empty(16, dtype=np.int64)
-    horizon_out = np.empty(16, dtype=np.int64)
-    new_planes = np.empty((16, 4))
+    scratch = _scratch(capacity)
     stamp = 0
     current = 0
-    while current < facets:
-        f = current
-        if not alive[f] or head[f] < 0:
-            current += 1
-            continue
-        eye = farthest[f]
-        stamp += 1
-        # The facets the eye sees: a breadth-first search from f through visible neighbours.
-        visible[0] = f
-        seen_count = 1
-        tested[f] = stamp
-        seen[f] = stamp
-        i = 0
-        while i < seen_count:
-            g = visible[i]
-            i += 1
-            for e in range(3):
-                h = neighbours[g, e]
-                if tested[h] != stamp:
-                    tested[h] = stamp
-                    if _height(points, eye, planes, h) > -eps:
-                        seen[h] = stamp
-                        if seen_count == visible.shape[0]:
-                            visible = _grow(visible, 2 * seen_count)
-                        visible[seen_count] = h
-                        seen_count += 1
-        # The horizon: edges of seen facets whose neighbour is not seen.
-        edges = 0
-        for i in range(seen_count):
-            g = visible[i]
-            for e in range(3):
-                h = neighbours[g, e]
-                if seen[h] != stamp:
-                    if edges == horizon_from.shape[0]:
-                        horizon_from = _grow(horizon_from, 2 * edges)
-                        horizon_to = _grow(horizon_to, 2 * edges)
-                        horizon_out = _grow(horizon_out, 2 * edges)
-                        new_planes = _grow_rows(new_planes, 2 * edges)
-                    horizon_from[edges] = corners[g, e]
-                    horizon_to[edges] = corners[g, (e + 1) % 3]
-                    horizon_out[edges] = h
-                    edges += 1
-        # It must be one simple cycle, and every new facet must have a normal.
-        usable = edges >= 3
-        if usable:
-            for e in range(edges):
-                v = horizon_from[e]
-                if vertex_mark[v] == stamp:
-                    usable = False
-                    break
-                vertex_mark[v] = stamp
-                vertex_edge[v] = e
-        if usable:
-            e = 0
-            for step in range(edges):
-                v = horizon_to[e]
-                if vertex_mark[v] != stamp:
-                    usable = False
-                    break
-                e = vertex_edge[v]
-                if e == 0 and step < edges - 1:
-                    usable = False
-                    break
-            if e != 0:
-                usable = False
-        if usable:
-            for e in range(edges):
-                if not _plane(points, horizon_from[e], horizon_to[e], eye, new_planes, e):
-                    usable = False
-                    break
-                # The tetrahedron's centroid is inside: a new facet must face away from it.
-                height = (
-                    new_planes[e, 0] * inner_x
-                    + new_planes[e, 1] * inner_y
-                    + new_planes[e, 2] * inner_z
-                    - new_planes[e, 3]
-                )
-                if not height < 0.0:
-                    usable = False
-                    break
-        if not usable:
-            # Rounding made the seen region ragged: drop the eye (within rounding of the hull).
-            _unlink(head, following, f, eye)
-            farthest[f] = -1
-            top[f] = 0.0
-            q = head[f]
-            while q >= 0:
-                height = _height(points, q, planes, f)
-                if farthest[f] < 0 or height > top[f]:
-                    top[f] = height
-                    farthest[f] = q
-                q = following[q]
-            continue
-        if facets + edges > corners.shape[0]:
-            grown = 2 * (facets + edges)
-            corners = _grow_rows(corners, grown)
-            neighbours = _grow_rows(neighbours, grown)
-            planes = _grow_rows(planes, grown)
-            alive = _grow(alive, grown)
-            head = _grow(head, grown)
-            farthest = _grow(farthest, grown)
-            top = _grow(top, grown)
-            tested = _grow(tested, grown)
-            seen = _grow(seen, grown)
-            for f in range(facets, grown):
-                tested[f] = 0
-                seen[f] = 0
-        # A fan of new facets from the horizon to the eye.
-        for e in range(edges):
-            n = facets + e
-            u = horizon_from[e]
-            v = horizon_to[e]
-            corners[n, 0] = u
-            corners[n, 1] = v
-            corners[n, 2] = eye
-            for k in range(4):
-                planes[n, k] = new_planes[e, k]
-            h = horizon_out[e]
-            neighbours[n, 0] = h
-            for k in range(3):
-                if corners[h, k] == v and corners[h, (k + 1) % 3] == u:
-                    neighbours[h, k] = n
-            after = facets + vertex_edge[v]
-            neighbours[n, 1] = after
-            neighbours[after, 2] = n
-            alive[n] = True
-            head[n] = -1
-            farthest[n] = -1
-            top[n] = 0.0
-            tested[n] = 0
-            seen[n] = 0
-        # Hand the seen facets' points to the new facets (or drop them: they are inside).
-        for i in range(seen_count):
-            g = visible[i]
-            alive[g] = False
-            q = head[g]
-            head[g] = -1
-            while q >= 0:
-                following_q = following[q]
-                if q != eye:
-                    for e in range(edges):
-                        n = facets + e
-                        height = _height(points, q, planes, n)
-                        if height > eps:
-                            following[q] = head[n]
-                            head[n] = q
-                            if farthest[n] < 0 or height > top[n]:
-                                top[n] = height
-                                farthest[n] = q
-                            break
-                q = following_q
-        facets += edges
+    while True:
+        visible, horizon_from, horizon_to, horizon_out, new_planes = scratch
+        facets, current, stamp, needed = _expand(
+            points,
+            eps,
+            inner_x,
+            inner_y,
+            inner_z,
+            corners,
+            neighbours,
+            planes,
+            alive,
+            head,
+            farthest,
+            top,
+            tested,
+            seen,
+            following,
+            vertex_mark,
+            vertex_edge,
+            visible,
+            horizon_from,
+            horizon_to,
+            horizon_out,
+            new_planes,
+            facets,
+            current,
+            stamp,
+        )
+        if needed == 0:
+            break
+        kept = corners.shape[0]
+        corners = _grow_rows(corners, needed)
+        neighbours = _grow_rows(neighbours, needed)
+        planes = _grow_rows(planes, needed)
+        alive = _grow(alive, needed)
+        head = _grow(head, needed)
+        farthest = _grow(farthest, needed)
+        top = _grow(top, needed)
+        tested = _grow(tested, needed)
+        seen = _grow(seen, needed)
+        for f in range(kept, needed):
+            tested[f] = 0
+            seen[f] = 0
+        scratch = _scratch(needed)
 
     # Compact: live facets, their vertices, and each edge once with its two facets.
     facet_id = np.full(facets, -1, dtype=np.int64)
