@@ -380,6 +380,62 @@ def test_grid_axes_are_distinct_unit_directions():
     assert box.volume == pytest.approx(0.3 * 0.2 * 0.1, rel=1e-9)
 
 
+def _distinct_by_bound(axes, bounds, count, taken):
+    """Take axes by increasing bound (ties by index), no repeats: the ranking's contract."""
+    taken = list(taken)
+    added = 0
+    for j in np.lexsort((np.arange(len(bounds)), bounds)):
+        if added == count:
+            break
+        if all(abs(axes[j] @ axis) <= 1.0 - search._PARALLEL for axis in taken):
+            taken.append(axes[j])
+            added += 1
+    return taken
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    count=st.integers(6, 400),
+    seed=st.integers(0, 2**16),
+    candidates=st.integers(1, 40),
+    pair_edges=st.integers(0, 8),
+    exhaustive=st.sampled_from([0, 32, 10_000]),
+    rounded=st.booleans(),
+)
+def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
+    count, seed, candidates, pair_edges, exhaustive, rounded
+):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
+    if rounded:  # many parallel facets, equal bounds and repeated axes
+        points = np.round(points * 2.0) / 2.0
+    found = hull.convex_hull(points)
+    assume(found.status == hull.FULL_RANK)
+    vertices = np.ascontiguousarray(points[found.vertices])
+    sample_size = 200
+    axes = search.candidate_axes_kernel(
+        vertices, found.normals, found.areas, found.edges, seed, candidates, pair_edges,
+        sample_size, exhaustive,
+    )  # fmt: skip
+    sample = search._sample(len(vertices), sample_size, seed)
+    facets = len(found.normals)
+    shadow = (
+        found.areas[:, None] * found.normals
+        if facets <= search.EXACT_SHADOW_FACETS
+        else search._binned_area_vectors(found.normals, found.areas)
+    )
+    if facets <= exhaustive:
+        expected = _distinct_by_bound(found.normals, np.arange(facets), facets, np.eye(3))
+    else:
+        bounds = search._volume_bounds(found.normals, vertices, sample, shadow)
+        expected = _distinct_by_bound(found.normals, bounds, candidates, np.eye(3))
+    pairs = search._edge_pair_axes(vertices, found.edges, pair_edges)
+    if len(pairs) and candidates // 2:
+        bounds = search._volume_bounds(pairs, vertices, sample, shadow)
+        expected = _distinct_by_bound(pairs, bounds, candidates // 2, expected)
+    np.testing.assert_array_equal(axes, np.array(expected))
+
+
 def test_the_pca_frame_is_a_right_handed_eigenbasis():
     rng = np.random.default_rng(10)
     for _ in range(20):
