@@ -34,7 +34,7 @@ point of every column of a grid, along each axis. Large clouds are hulled on it 
 then within one column width of the coreset's hull, across the column).
 
 Cost: O(N) for the coreset; quickhull O(N log H) expected for N points and H hull vertices (about
-40 ns a point on the Kinect scans, 0.5 to 1 microsecond per hull vertex).
+30-50 ns a point on the Kinect and stereo scans, about half a microsecond per hull vertex).
 """
 
 from __future__ import annotations
