@@ -260,16 +260,21 @@ def score_kernel(points: np.ndarray, cells: int, volume: bool, min_thickness: fl
     cell_min = np.full((3, 3, cells), np.inf)
     cell_max = np.full((3, 3, cells), -np.inf)
     counts = np.zeros((3, cells), dtype=np.int64)
+    # Selects, not branches (a branch per bound mispredicted; min and max keep the current
+    # bound on ties as the branches did, so the bounds are the same bit for bit).
     for i in range(count):
+        x = points[i, 0]
+        y = points[i, 1]
+        z = points[i, 2]
         for axis in range(3):
             cell = index[i, axis]
             counts[axis, cell] += 1
-            for k in range(3):
-                value = points[i, k]
-                if value < cell_min[axis, k, cell]:
-                    cell_min[axis, k, cell] = value
-                if value > cell_max[axis, k, cell]:
-                    cell_max[axis, k, cell] = value
+            cell_min[axis, 0, cell] = min(cell_min[axis, 0, cell], x)
+            cell_max[axis, 0, cell] = max(cell_max[axis, 0, cell], x)
+            cell_min[axis, 1, cell] = min(cell_min[axis, 1, cell], y)
+            cell_max[axis, 1, cell] = max(cell_max[axis, 1, cell], y)
+            cell_min[axis, 2, cell] = min(cell_min[axis, 2, cell], z)
+            cell_max[axis, 2, cell] = max(cell_max[axis, 2, cell], z)
     cuts = cells - 1
     # The part below cut j holds cells <= j, the part above cells > j.
     lower_min = np.empty((3, 3, cuts))
