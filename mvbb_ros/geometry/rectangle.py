@@ -83,15 +83,15 @@ def sort_xy_kernel(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) 
         return
     # Heapsort: build a max-heap, then move the largest to the end, count times.
     for start in range(count // 2 - 1, -1, -1):
-        _sift_down(x, y, order, start, count)
+        sift_down(x, y, order, start, count)
     for end in range(count - 1, 0, -1):
         order[0], order[end] = order[end], order[0]
-        _sift_down(x, y, order, 0, end)
+        sift_down(x, y, order, 0, end)
 
 
 @nb.njit
-def _sift_down(x: np.ndarray, y: np.ndarray, order: np.ndarray, root: int, end: int) -> None:
-    """Restore the max-heap order of ``order[root:end]`` below `root`."""
+def sift_down(x: np.ndarray, y: np.ndarray, order: np.ndarray, root: int, end: int) -> None:
+    """Restore the max-heap order, by (x, y), of the indices ``order[root:end]`` below `root`."""
     while True:
         child = 2 * root + 1
         if child >= end:

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 
-from mvbb_ros.geometry.rectangle import calipers_kernel, hull_2d_kernel, sort_xy_kernel
+from mvbb_ros.geometry.rectangle import calipers_kernel, hull_2d_kernel, sift_down, sort_xy_kernel
 import numba as nb
 import numpy as np
 
@@ -316,27 +316,6 @@ def _volume_bounds(
 
 
 @nb.njit
-def _first(values: np.ndarray, a: int, b: int) -> bool:
-    """Tell whether entry a comes before entry b: smaller value, ties by index."""
-    return values[a] < values[b] or (values[a] == values[b] and a < b)
-
-
-@nb.njit
-def _sift_smallest(values: np.ndarray, heap: np.ndarray, root: int, end: int) -> None:
-    """Restore the min-heap order (by :func:`_first`) of ``heap[root:end]`` below `root`."""
-    while True:
-        child = 2 * root + 1
-        if child >= end:
-            return
-        if child + 1 < end and _first(values, heap[child + 1], heap[child]):
-            child += 1
-        if not _first(values, heap[child], heap[root]):
-            return
-        heap[root], heap[child] = heap[child], heap[root]
-        root = child
-
-
-@nb.njit
 def _take_distinct(
     axes: np.ndarray, values: np.ndarray, count: int, out: np.ndarray, size: int
 ) -> int:
@@ -347,16 +326,20 @@ def _take_distinct(
     skipped. The axes come off a heap one at a time: usually a sixth of them are looked at, and
     a full sort cost more than the rest of the ranking. :return: the new size of `out`.
     """
+    # The 2D sort's max-heap on (-value, -index): its top is the smallest value, ties by index
+    # (negation is exact, so the order is the sort's).
     remaining = values.shape[0]
+    keys = -values
+    ties = -np.arange(remaining).astype(np.float64)
     heap = np.arange(remaining)
     for root in range(remaining // 2 - 1, -1, -1):
-        _sift_smallest(values, heap, root, remaining)
+        sift_down(keys, ties, heap, root, remaining)
     start = size
     while remaining > 0 and size - start < count and size < out.shape[0]:
         j = heap[0]
         remaining -= 1
         heap[0] = heap[remaining]
-        _sift_smallest(values, heap, 0, remaining)
+        sift_down(keys, ties, heap, 0, remaining)
         repeated = False
         for i in range(size):
             dot = axes[j, 0] * out[i, 0] + axes[j, 1] * out[i, 1] + axes[j, 2] * out[i, 2]
