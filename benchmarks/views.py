@@ -80,6 +80,10 @@ CONFIGS: dict[str, dict[str, Any]] = {
     # the up direction a robot knows from TF.
     'node': {'preset': 'node', 'params': {}, 'up': False},
     'node+up': {'preset': 'node', 'params': {}, 'up': True},
+    # The node's defaults with the paper's single best cut by theta instead of the best of
+    # three cuts by their fitted parts (the default until 2026-12-02, docs/single_views.md).
+    'theta cut': {'preset': 'node', 'params': {'rescore_cuts': 0}, 'up': False},
+    'theta cut+up': {'preset': 'node', 'params': {'rescore_cuts': 0}, 'up': True},
     # Issue 16's measuring conditions: a 14 cm opening, up from the table; the node's grasps
     # (refined on the points) and the paper's hypotheses on the same boxes (refinement off).
     'node+up/14cm': {'preset': 'node', 'params': {'gripper_max_width': 0.14}, 'up': True},

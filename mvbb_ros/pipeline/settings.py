@@ -242,6 +242,9 @@ SPECS: tuple[SettingSpec, ...] = (
         int,
         'Re-score the best K cuts with real box fits (0 = the paper).',
         (0, 32),
+        # On completed single views the projection measure's best cut often is not the one
+        # whose fitted parts gain most: docs/single_views.md, "Which cut".
+        node_default=3,
     ),
     SettingSpec(
         'seed',
