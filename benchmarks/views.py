@@ -68,7 +68,12 @@ PICTURE_MESHES = ('mug', 'cereal', 'bunny', 'duck')
 #: The configurations: label -> preset, node parameter overrides and whether the view's up
 #: direction is passed (robot with TF) or not (unknown). New approaches are new entries.
 #: The node's defaults before issue 15: the paper's boxes on filtered points, one object.
-_BEFORE = {'shape_completion': 'none', 'min_box_thickness': 0.0, 'cluster_tolerance': 0.0}
+_BEFORE = {
+    'shape_completion': 'none',
+    'min_box_thickness': 0.0,
+    'cluster_tolerance': 0.0,
+    'rescore_cuts': 0,
+}
 CONFIGS: dict[str, dict[str, Any]] = {
     'paper': {'preset': 'paper', 'params': {}, 'up': False},
     'before': {'preset': 'node', 'params': _BEFORE, 'up': False},

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 import mvbb_ros
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition import ORDERS, STOP_REASONS
+from mvbb_ros.geometry.decomposition import ORDERS, RESCORE_MARGIN, STOP_REASONS
 from mvbb_ros.geometry.fit import fit_part
 from mvbb_ros.geometry.split import cut_mask, score_cuts
 import numpy as np
@@ -257,17 +257,41 @@ def test_best_first_leaves_no_split_that_passes_at_the_end():
 
 
 def fitting_every_part(points: np.ndarray, **options) -> mvbb_ros.Decomposition:
-    """Decompose with both parts of every tested split fitted (no refusal on one part alone)."""
+    """Decompose with both parts of every candidate cut fitted: no bound, no skipped fit."""
     from unittest import mock
 
-    from mvbb_ros.geometry import decomposition
+    from mvbb_ros.geometry import decomposition, split
 
-    best_split = decomposition._best_split
+    def every_part(points, draft, settings, fit_parts, others=None):
+        box = draft.box
+        # The decomposition's own framing of the points (the cuts depend on its rounding).
+        local = split.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
+        scores = score_cuts(
+            local,
+            cells=settings.grid_cells,
+            measure=settings.split_measure,
+            min_thickness=settings.min_thickness,
+        )
+        limit = max(1, settings.rescore_cuts) if fit_parts else 1
+        splits = []
+        for cut in split.candidate_cuts(scores, box, limit=limit):
+            upper = cut_mask(scores, cut)
+            parts = (draft.point_indices[~upper], draft.point_indices[upper])
+            if not fit_parts:
+                return decomposition._Split(cut=cut, parts=parts, boxes=None)
+            boxes = tuple(
+                fit_part(np.ascontiguousarray(points[p]), seed=settings.seed) for p in parts
+            )
+            splits.append(decomposition._Split(cut=cut, parts=parts, boxes=boxes))
+        if not splits:
+            return None
+        # The smallest pair of boxes; another cut must beat the paper's (the first) by the margin.
+        best = min(splits, key=lambda s: s.volume)
+        if best.volume >= splits[0].volume - RESCORE_MARGIN * box.volume:
+            best = splits[0]
+        return best
 
-    def both_parts(points, draft, settings, fit_parts, others=None):
-        return best_split(points, draft, settings, fit_parts)
-
-    with mock.patch.object(decomposition, '_best_split', both_parts):
+    with mock.patch.object(decomposition, '_best_split', every_part):
         return mvbb_ros.decompose(points, **options)
 
 
@@ -276,7 +300,7 @@ def assert_same_tree(fast: mvbb_ros.Decomposition, full: mvbb_ros.Decomposition)
     Check that two decompositions are the same tree; return how many refused gains differ.
 
     A refused split's recorded Theta* may be the lower bound of its larger part's box alone: at
-    least the threshold, at most the Theta* of both parts' boxes.
+    least the threshold, at most the Theta* of both parts' boxes (then the cuts may differ).
     """
     assert len(fast.nodes) == len(full.nodes)
     bounded = 0
@@ -287,17 +311,45 @@ def assert_same_tree(fast: mvbb_ros.Decomposition, full: mvbb_ros.Decomposition)
         np.testing.assert_array_equal(quick.point_indices, whole.point_indices)
         assert quick.stop_reason == whole.stop_reason and quick.children == whole.children
         cuts = [None if n.tested_cut is None else n.tested_cut.to_dict() for n in (quick, whole)]
-        assert cuts[0] == cuts[1]
         if quick.gain != whole.gain:
+            # Refused on bounds: the cut whose larger part's box is smallest, with that bound.
             assert quick.stop_reason == 'gain'
             assert fast.settings.gain_threshold <= quick.gain <= whole.gain
             bounded += 1
+        else:
+            assert cuts[0] == cuts[1]
     return bounded
 
 
 @settings(max_examples=40, deadline=None)
 @given(points=clouds(), options=decomposition_options)
 def test_refusing_on_the_larger_part_alone_changes_no_box(points, options):
+    assert_same_tree(mvbb_ros.decompose(points, **options), fitting_every_part(points, **options))
+
+
+@st.composite
+def blocks(draw) -> np.ndarray:
+    """Unions of two to four rough blocks of a few hundred points: shapes worth splitting."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    parts = []
+    for _ in range(draw(st.integers(2, 4))):
+        low = rng.uniform(-2.0, 2.0, 3)
+        parts.append(solid(list(low), list(low + rng.uniform(0.2, 3.0, 3)), 150, rng))
+    points = np.vstack(parts) + rng.normal(
+        0.0, draw(st.sampled_from([0.0, 0.02])), (150 * len(parts), 3)
+    )
+    return points @ Rotation.random(random_state=rng.integers(2**31)).as_matrix().T
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    points=blocks(),
+    threshold=st.sampled_from([0.9, 0.94, 0.98]),
+    cuts=st.integers(2, 4),
+    order=st.sampled_from(['volume', 'depth']),
+)
+def test_rescoring_with_bounds_and_skipped_fits_changes_no_box(points, threshold, cuts, order):
+    options = {'gain_threshold': threshold, 'rescore_cuts': cuts, 'order': order}
     assert_same_tree(mvbb_ros.decompose(points, **options), fitting_every_part(points, **options))
 
 
@@ -324,6 +376,34 @@ def test_rescoring_never_makes_the_first_split_worse():
 
     assert child_volume(rescored) <= child_volume(paper) * (1.0 + 1e-12)
     assert rescored.root.gain <= paper.root.gain + 1e-12
+
+
+@settings(max_examples=40, deadline=None)
+@given(points=clouds(), cuts=st.integers(2, 4))
+def test_rescoring_leaves_the_papers_cut_only_for_clearly_smaller_boxes(points, cuts):
+    options = {'gain_threshold': 1.0, 'max_boxes': 2, 'min_points': 1}
+    paper = mvbb_ros.decompose(points, **options)
+    rescored = mvbb_ros.decompose(points, rescore_cuts=cuts, **options)
+    assert_valid(rescored, points)
+    if not rescored.root.children:
+        return
+
+    def parts(result: mvbb_ros.Decomposition) -> list[list[int]]:
+        return sorted(sorted(result.nodes[i].point_indices.tolist()) for i in result.root.children)
+
+    def child_volume(result: mvbb_ros.Decomposition) -> float:
+        return (
+            result.nodes[result.root.children[0]].box.volume
+            + result.nodes[result.root.children[1]].box.volume
+        )
+
+    if paper.root.children and parts(rescored) == parts(paper):
+        return
+    # Another cut won: its boxes are smaller than the paper's cut's by more than the margin
+    # (the paper's cut is always one of the candidates, so the paper's tree split too).
+    assert paper.root.children
+    margin = RESCORE_MARGIN * rescored.root.box.volume
+    assert child_volume(rescored) < child_volume(paper) - margin
 
 
 def test_volume_measure_is_an_option_not_the_default():

@@ -38,6 +38,10 @@ DEFAULT_GAIN_THRESHOLD = 0.94
 #: real vertices of the paper's mug (45 against 33 at t = 0.98), 40 loses up to 0.16 % of real
 #: points. A count, so independent of units; mind it when voxel filtering thins a cloud.
 DEFAULT_MIN_POINTS = 10
+#: With rescoring, another cut replaces the paper's best cut by theta only when its parts'
+#: boxes are smaller by more than this share of the box's volume: near-ties keep the paper's
+#: cut (the PCL stereo mug's handle cut against a rim slab 0.2 % smaller; docs/single_views.md).
+RESCORE_MARGIN = 0.005
 #: Processing orders of the boxes waiting to be tested (see :func:`decompose`).
 Order = Literal['volume', 'gain', 'breadth', 'depth']
 ORDERS: tuple[Order, ...] = get_args(Order)
@@ -380,12 +384,16 @@ def _best_split(
     """
     Find the split of a node: the paper's theta*, or the best of k real fits (rescoring).
 
+    The part with more points of each cut is fitted first. A cut whose larger part's box alone
+    is no smaller than the best split so far (less the margin when that is the paper's cut)
+    cannot win, and its other part is not fitted.
+
     :param fit_parts: fit the parts' boxes; False returns the best cut by theta unfitted (for a
         split that no child volumes could pass).
-    :param others: V(A minus P) when the split is tested at once (eq. 2): the part with more
-        points is then fitted first, and when its box alone keeps Theta* at t or above the
-        split is returned with only that bound (the other part's box cannot lower Theta*).
-        None fits both parts (the ``'gain'`` order ranks splits before A is known).
+    :param others: V(A minus P) when the split is tested at once (eq. 2): when every cut's
+        larger part alone keeps Theta* at t or above, the cut with the smallest such box is
+        returned with only that bound (no other part's box can lower Theta*). None fits the
+        parts needed to rank the cuts (the ``'gain'`` order ranks splits before A is known).
     """
     box = draft.box
     local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
@@ -396,7 +404,7 @@ def _best_split(
         min_thickness=settings.min_thickness,
     )
     limit = max(1, settings.rescore_cuts) if fit_parts else 1
-    best: _Split | None = None
+    candidates: list[tuple[splitting.Cut, tuple[IndexArray, IndexArray], int, Box]] = []
     for cut in splitting.candidate_cuts(scores, draft.box, limit=limit):
         upper = splitting.cut_mask(scores, cut)
         parts = (draft.point_indices[~upper], draft.point_indices[upper])
@@ -404,13 +412,26 @@ def _best_split(
             return _Split(cut=cut, parts=parts, boxes=None)
         larger = 0 if len(parts[0]) >= len(parts[1]) else 1
         first = fit_part(np.take(points, parts[larger], axis=0), seed=settings.seed)
-        if limit == 1 and others is not None:
-            if not _theta_star(draft, first.volume, others) < settings.gain_threshold:
-                return _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
+        candidates.append((cut, parts, larger, first))
+    if not candidates:
+        return None
+    if others is not None and not any(
+        _theta_star(draft, first.volume, others) < settings.gain_threshold
+        for *_, first in candidates
+    ):
+        cut, parts, _, first = min(candidates, key=lambda candidate: candidate[3].volume)
+        return _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
+    paper_cut = candidates[0][0]
+    best: _Split | None = None
+    for cut, parts, larger, first in candidates:
+        # The paper's cut (the first) yields only to a clearly smaller pair of boxes.
+        margin = RESCORE_MARGIN * box.volume if best is not None and best.cut is paper_cut else 0.0
+        if best is not None and not first.volume < best.volume - margin:
+            continue
         second = fit_part(np.take(points, parts[1 - larger], axis=0), seed=settings.seed)
         boxes = (first, second) if larger == 0 else (second, first)
         split = _Split(cut=cut, parts=parts, boxes=boxes)
-        if best is None or split.volume < best.volume:
+        if best is None or split.volume < best.volume - margin:
             best = split
     return best
 
@@ -536,8 +557,9 @@ def decompose(
         families, same cost).
     :param rescore_cuts: 0 is the paper (the single best cut by theta). k > 0 fits both
         children's MVBBs for the k best distinct cuts (local minima of theta) and keeps the one
-        with the smallest summed child volume: 2k box fits per tested box instead of 2, to find
-        cuts that the projection measure ranks lower (the paper's bunny ear).
+        with the smallest summed child volume, the paper's cut unless another is smaller by
+        more than :data:`RESCORE_MARGIN` of the box: 2k box fits per tested box instead of 2,
+        to find cuts that the projection measure ranks lower (the paper's bunny ear).
     :param max_boxes: cap on the number of leaves, or None. A split that would take the number
         of kept leaves above it is refused (``stop_reason='max_boxes'``); a split that only cuts
         off noise does not add a leaf and is still allowed.
