@@ -363,6 +363,11 @@ def test_a_split_refused_on_its_larger_part_alone_is_the_one_refused_with_both()
     assert assert_same_tree(fast, fitting_every_part(points, gain_threshold=0.98)) > 0
 
 
+def root_children_volume(result: mvbb_ros.Decomposition) -> float:
+    """Return the summed volume of the root's children's boxes."""
+    return math.fsum(result.nodes[i].box.volume for i in result.root.children)
+
+
 def test_rescoring_never_makes_the_first_split_worse():
     rng = np.random.default_rng(6)
     points, _ = l_shape(rng)
@@ -371,10 +376,7 @@ def test_rescoring_never_makes_the_first_split_worse():
     rescored = mvbb_ros.decompose(points, gain_threshold=1.0, max_boxes=2, rescore_cuts=6)
     assert_valid(rescored, points)
 
-    def child_volume(result: mvbb_ros.Decomposition) -> float:
-        return math.fsum(result.nodes[i].box.volume for i in result.root.children)
-
-    assert child_volume(rescored) <= child_volume(paper) * (1.0 + 1e-12)
+    assert root_children_volume(rescored) <= root_children_volume(paper) * (1.0 + 1e-12)
     assert rescored.root.gain <= paper.root.gain + 1e-12
 
 
@@ -391,19 +393,13 @@ def test_rescoring_leaves_the_papers_cut_only_for_clearly_smaller_boxes(points, 
     def parts(result: mvbb_ros.Decomposition) -> list[list[int]]:
         return sorted(sorted(result.nodes[i].point_indices.tolist()) for i in result.root.children)
 
-    def child_volume(result: mvbb_ros.Decomposition) -> float:
-        return (
-            result.nodes[result.root.children[0]].box.volume
-            + result.nodes[result.root.children[1]].box.volume
-        )
-
     if paper.root.children and parts(rescored) == parts(paper):
         return
     # Another cut won: its boxes are smaller than the paper's cut's by more than the margin
     # (the paper's cut is always one of the candidates, so the paper's tree split too).
     assert paper.root.children
     margin = RESCORE_MARGIN * rescored.root.box.volume
-    assert child_volume(rescored) < child_volume(paper) - margin
+    assert root_children_volume(rescored) < root_children_volume(paper) - margin
 
 
 def test_volume_measure_is_an_option_not_the_default():
