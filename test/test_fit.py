@@ -436,6 +436,70 @@ def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
     np.testing.assert_array_equal(axes, np.array(expected))
 
 
+def _shadow_and_sample(vertices, found, seed, sample_size=200):
+    return (
+        search._shadow_vectors(found.normals, found.areas),
+        search._sample(len(vertices), sample_size, seed),
+    )
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    count=st.integers(6, 400),
+    seed=st.integers(0, 2**16),
+    rounded=st.booleans(),
+    sample_size=st.sampled_from([8, 200]),
+)
+def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded, sample_size):
+    # The search skips an axis whose bound is above the starts' boxes: sound only if no box
+    # with that axis is smaller than its bound (to the slack), box-like hulls included.
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
+    if rounded:  # box-like hulls: shadows that are their own rectangles
+        points = np.round(points * 2.0) / 2.0
+    found = hull.convex_hull(points)
+    assume(found.status == hull.FULL_RANK)
+    vertices = np.ascontiguousarray(points[found.vertices])
+    shadow, sample = _shadow_and_sample(vertices, found, seed, sample_size)
+    axes = np.vstack([np.eye(3), found.normals, _random_rotation(seed)])
+    bounds = search._volume_bounds(axes, vertices, sample, shadow)
+    volumes = np.array([_turn(vertices, found, axis)[0] for axis in axes])
+    assert np.all(bounds * (1.0 - search.BOUND_SLACK) <= volumes)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    count=st.integers(6, 400),
+    seed=st.integers(0, 2**16),
+    starts=st.integers(1, 6),
+    rounded=st.booleans(),
+)
+def test_the_search_turns_the_same_starts_as_with_every_axis_turned(count, seed, starts, rounded):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
+    if rounded:
+        points = np.round(points * 2.0) / 2.0
+    found = hull.convex_hull(points)
+    assume(found.status == hull.FULL_RANK)
+    vertices = np.ascontiguousarray(points[found.vertices])
+    knobs = (seed, 16, 6, 200, 32)  # seed, candidates, pair edges, sample size, exhaustive
+    arrays = (vertices, found.normals, found.edges, found.edge_facets)
+    volume, frame = search.search_kernel(
+        vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs, starts, 3, 0
+    )
+    # The plain search: every candidate axis turned, the `starts` smallest boxes polished.
+    axes = search.candidate_axes_kernel(vertices, found.normals, found.areas, found.edges, *knobs)
+    turned = [_turn(vertices, found, axis) for axis in axes]
+    order = search._ranking(np.array([v for v, _ in turned]), len(axes))[:starts]
+    work = search.new_work(len(vertices), len(found.normals))
+    expected_volume, expected_frame = search.polish(
+        *arrays, work,
+        np.array([turned[i][1] for i in order]), np.array([turned[i][0] for i in order]), 3,
+    )  # fmt: skip
+    assert volume == expected_volume
+    np.testing.assert_array_equal(frame, expected_frame)
+
+
 def test_the_pca_frame_is_a_right_handed_eigenbasis():
     rng = np.random.default_rng(10)
     for _ in range(20):
