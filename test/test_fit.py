@@ -467,14 +467,45 @@ def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded,
     assert np.all(bounds * (1.0 - search.BOUND_SLACK) <= volumes)
 
 
-@settings(max_examples=60, deadline=None)
+def _plain_search(vertices, found, knobs, starts, rounds, grid_size):
+    """Search with every candidate axis and grid direction turned (no bounds): a reference."""
+    arrays = (vertices, found.normals, found.edges, found.edge_facets)
+    work = search.new_work(len(vertices), len(found.normals))
+    axes = search.candidate_axes_kernel(vertices, found.normals, found.areas, found.edges, *knobs)
+    turned = [_turn(vertices, found, axis) for axis in axes]
+    order = search._ranking(np.array([v for v, _ in turned]), len(axes))[:starts]
+    frames = np.array([turned[i][1] for i in order])
+    volume, frame = search.polish(
+        *arrays, work, frames, np.array([turned[i][0] for i in order]), rounds
+    )
+    for _ in range(rounds if grid_size > 0 else 0):
+        best, best_frame = volume, None
+        for axis in search.grid_axes(frame, grid_size):
+            found_volume, found_frame = _turn(vertices, found, axis)
+            if found_volume < best:
+                best, best_frame = found_volume, found_frame
+        if not best < volume * (1.0 - search.POLISH_TOLERANCE):
+            break
+        volume, frame = search.polish(*arrays, work, best_frame[None], np.array([best]), rounds)
+    return volume, frame
+
+
+@settings(max_examples=200, deadline=None)
 @given(
     count=st.integers(6, 400),
     seed=st.integers(0, 2**16),
+    candidates=st.integers(1, 24),
+    pair_edges=st.integers(0, 6),
+    exhaustive=st.sampled_from([0, 32]),
     starts=st.integers(1, 6),
+    rounds=st.integers(1, 3),
+    grid_size=st.integers(0, 2),
     rounded=st.booleans(),
 )
-def test_the_search_turns_the_same_starts_as_with_every_axis_turned(count, seed, starts, rounded):
+def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
+    count, seed, candidates, pair_edges, exhaustive, starts, rounds, grid_size, rounded
+):
+    # Axes and grid directions ruled out by their volume bounds change nothing.
     rng = np.random.default_rng(seed)
     points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
     if rounded:
@@ -482,20 +513,14 @@ def test_the_search_turns_the_same_starts_as_with_every_axis_turned(count, seed,
     found = hull.convex_hull(points)
     assume(found.status == hull.FULL_RANK)
     vertices = np.ascontiguousarray(points[found.vertices])
-    knobs = (seed, 16, 6, 200, 32)  # seed, candidates, pair edges, sample size, exhaustive
-    arrays = (vertices, found.normals, found.edges, found.edge_facets)
+    # Few candidates, starts and rounds leave the grid directions something to find.
+    knobs = (seed, candidates, pair_edges, 200, exhaustive)  # 200: the sample size
     volume, frame = search.search_kernel(
-        vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs, starts, 3, 0
-    )
-    # The plain search: every candidate axis turned, the `starts` smallest boxes polished.
-    axes = search.candidate_axes_kernel(vertices, found.normals, found.areas, found.edges, *knobs)
-    turned = [_turn(vertices, found, axis) for axis in axes]
-    order = search._ranking(np.array([v for v, _ in turned]), len(axes))[:starts]
-    work = search.new_work(len(vertices), len(found.normals))
-    expected_volume, expected_frame = search.polish(
-        *arrays, work,
-        np.array([turned[i][1] for i in order]), np.array([turned[i][0] for i in order]), 3,
+        vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs,
+        starts, rounds, grid_size,
     )  # fmt: skip
+    expected = _plain_search(vertices, found, knobs, starts, rounds, grid_size)
+    expected_volume, expected_frame = expected
     assert volume == expected_volume
     np.testing.assert_array_equal(frame, expected_frame)
 

@@ -631,7 +631,8 @@ def search_kernel(
     # kept-th smallest box so far cannot be one of them, and is not turned (the slack covers
     # the bound's rounding; the starts are the same as with every axis turned).
     sample = _sample(vertices.shape[0], sample_size, seed)
-    bounds = _volume_bounds(axes, vertices, sample, _shadow_vectors(normals, areas))
+    shadow = _shadow_vectors(normals, areas)
+    bounds = _volume_bounds(axes, vertices, sample, shadow)
     smallest = np.full(kept, np.inf)
     volumes = np.full(count, np.inf)
     frames = np.empty((count, 3, 3))
@@ -667,11 +668,15 @@ def search_kernel(
     # Barequet and Har-Peled's grid of directions around the best frame: when the best box about
     # one of them is smaller, polish it and look again (the alternating rotations alone can stop
     # where no single-axis turn helps but a turn about a diagonal does).
+    # A direction whose bound is above the best box cannot give a smaller one: not turned.
     trial = np.empty((1, 3, 3))
     for _ in range(max_rounds if grid_size > 0 else 0):
         grid = grid_axes(frame, grid_size)
+        bounds = _volume_bounds(grid, vertices, sample, shadow)
         best = volume
         for j in range(grid.shape[0]):
+            if bounds[j] * (1.0 - BOUND_SLACK) > best:
+                continue
             found = rotate_about(
                 vertices,
                 normals,
