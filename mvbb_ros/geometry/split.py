@@ -31,6 +31,7 @@ points.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import FloatArray, IndexArray
@@ -411,8 +412,6 @@ def _make_cut(scores: CutScores, row: int, position: int, box: Box, count: int) 
     offset = 0.5 * (scores.lower_max[axis, position] + scores.upper_min[axis, position])
     lower = int(scores.lower_count[axis, position])
     normal = box.rotation[:, axis].copy()
-    local_point = np.zeros(3)
-    local_point[axis] = offset
     return Cut(
         axis=int(axis),
         projection_axis=None if projection_axis is None else int(projection_axis),
@@ -422,7 +421,8 @@ def _make_cut(scores: CutScores, row: int, position: int, box: Box, count: int) 
         theta=float(scores.theta[row, position]),
         lower_count=lower,
         upper_count=count - lower,
-        point=box.to_world(local_point[None, :])[0],
+        # The plane's point in the box frame is offset along the axis: centre + offset * axis.
+        point=box.center + normal * offset,
         normal=normal,
     )
 
@@ -446,11 +446,10 @@ def candidate_cuts(scores: CutScores, box: Box, *, limit: int = 1) -> list[Cut]:
         raise ValueError(f'limit must be >= 1, got {limit}')
     theta = scores.theta
     count = len(scores.cell_index)
-    flat_best = int(np.argmin(theta))
-    best_row, best_position = np.unravel_index(flat_best, theta.shape)
-    if not np.isfinite(theta[best_row, best_position]):
+    best_row, best_position = divmod(int(np.argmin(theta)), theta.shape[1])
+    if not math.isfinite(theta[best_row, best_position]):
         return []
-    cuts = [_make_cut(scores, int(best_row), int(best_position), box, count)]
+    cuts = [_make_cut(scores, best_row, best_position, box, count)]
     if limit == 1:
         return cuts
 
