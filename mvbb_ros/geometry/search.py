@@ -334,10 +334,18 @@ def _shadow_vectors(normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
 
 @nb.njit
 def _take_distinct(
-    axes: np.ndarray, values: np.ndarray, count: int, out: np.ndarray, size: int
+    axes: np.ndarray,
+    values: np.ndarray,
+    bounds: np.ndarray,
+    count: int,
+    out: np.ndarray,
+    out_bounds: np.ndarray,
+    size: int,
 ) -> int:
     """
     Append to ``out[size:]`` up to `count` axes by increasing value (ties by index), no repeats.
+
+    Each taken axis's volume bound (from `bounds`) goes to the same row of `out_bounds`.
 
     A direction and its opposite are one axis; repeats of any axis already in ``out`` are
     skipped. The axes come off a heap one at a time: usually a sixth of them are looked at, and
@@ -366,6 +374,7 @@ def _take_distinct(
         if not repeated:
             for k in range(3):
                 out[size, k] = axes[j, k]
+            out_bounds[size] = bounds[j]
             size += 1
     return size
 
@@ -454,34 +463,41 @@ def candidate_axes_kernel(
     pair_edges: int,
     sample_size: int,
     exhaustive: int,
-) -> np.ndarray:
+) -> tuple:
     """
-    Return the axes whose best box is computed: PCA axes, facet normals, edge-pair normals.
+    Return the axes whose best box is computed (PCA axes, facet normals, edge-pair normals).
 
     The coordinates are those of the PCA frame, so its axes are the coordinate axes. Hulls with
     at most `exhaustive` facets give every distinct facet normal; larger ones the `candidates`
     of least volume bound (:func:`_volume_bounds`). Edge-pair normals of the `pair_edges`
     longest edges are ranked the same way, and half as many kept.
+
+    :return: the axes (K, 3) and their volume bounds (K,).
     """
     sample = _sample(vertices.shape[0], sample_size, seed)
     shadow = _shadow_vectors(normals, areas)
     facet_count = normals.shape[0] if normals.shape[0] <= exhaustive else candidates
     pairs = _edge_pair_axes(vertices, edges, pair_edges)
     out = np.empty((3 + facet_count + candidates // 2, 3))
+    out_bounds = np.empty(out.shape[0])
     size = 0
     for k in range(3):
         for j in range(3):
             out[size, j] = 1.0 if j == k else 0.0
         size += 1
+    pca_bounds = _volume_bounds(out[:3], vertices, sample, shadow)
+    for k in range(3):
+        out_bounds[k] = pca_bounds[k]
+    bounds = _volume_bounds(normals, vertices, sample, shadow)
     if normals.shape[0] <= exhaustive:
-        bounds = np.arange(normals.shape[0]).astype(np.float64)  # every normal, in order
+        order = np.arange(normals.shape[0]).astype(np.float64)  # every normal, in order
     else:
-        bounds = _volume_bounds(normals, vertices, sample, shadow)
-    size = _take_distinct(normals, bounds, facet_count, out, size)
+        order = bounds
+    size = _take_distinct(normals, order, bounds, facet_count, out, out_bounds, size)
     if pairs.shape[0] > 0 and candidates // 2 > 0:
         bounds = _volume_bounds(pairs, vertices, sample, shadow)
-        size = _take_distinct(pairs, bounds, candidates // 2, out, size)
-    return out[:size].copy()
+        size = _take_distinct(pairs, bounds, bounds, candidates // 2, out, out_bounds, size)
+    return out[:size].copy(), out_bounds[:size].copy()
 
 
 # The search ------------------------------------------------------------------------------------
@@ -623,7 +639,7 @@ def search_kernel(
     :return: the volume (of the hull vertices) and the frame (3, 3), columns the box axes.
     """
     work = new_work(vertices.shape[0], normals.shape[0])
-    axes = candidate_axes_kernel(
+    axes, bounds = candidate_axes_kernel(
         vertices, normals, areas, edges, seed, candidates, pair_edges, sample_size, exhaustive
     )
     count = axes.shape[0]
@@ -631,9 +647,6 @@ def search_kernel(
     # Only the `kept` smallest boxes start the polish: an axis whose volume bound is above the
     # kept-th smallest box so far cannot be one of them, and is not turned (the slack covers
     # the bound's rounding; the starts are the same as with every axis turned).
-    sample = _sample(vertices.shape[0], sample_size, seed)
-    shadow = _shadow_vectors(normals, areas)
-    bounds = _volume_bounds(axes, vertices, sample, shadow)
     smallest = np.full(kept, np.inf)
     volumes = np.full(count, np.inf)
     frames = np.empty((count, 3, 3))
@@ -673,7 +686,8 @@ def search_kernel(
     trial = np.empty((1, 3, 3))
     for _ in range(max_rounds if grid_size > 0 else 0):
         grid = grid_axes(frame, grid_size)
-        bounds = _volume_bounds(grid, vertices, sample, shadow)
+        sample = _sample(vertices.shape[0], sample_size, seed)
+        bounds = _volume_bounds(grid, vertices, sample, _shadow_vectors(normals, areas))
         best = volume
         for j in range(grid.shape[0]):
             if bounds[j] * (1.0 - BOUND_SLACK) > best:
