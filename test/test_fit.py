@@ -393,6 +393,21 @@ def _distinct_by_bound(axes, bounds, count, taken):
     return taken
 
 
+def _random_hull(count, seed, rounded):
+    """
+    Return the hull vertices and hull of a random flattened cloud (full rank, else assume away).
+
+    Rounded clouds have many parallel facets, equal bounds and repeated axes, and box-like hulls
+    whose shadows are their own rectangles.
+    """
+    points = np.random.default_rng(seed).normal(size=(count, 3)) * [1.0, 0.6, 0.3]
+    if rounded:
+        points = np.round(points * 2.0) / 2.0
+    found = hull.convex_hull(points)
+    assume(found.status == hull.FULL_RANK)
+    return np.ascontiguousarray(points[found.vertices]), found
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     count=st.integers(6, 400),
@@ -405,15 +420,9 @@ def _distinct_by_bound(axes, bounds, count, taken):
 def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
     count, seed, candidates, pair_edges, exhaustive, rounded
 ):
-    rng = np.random.default_rng(seed)
-    points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
-    if rounded:  # many parallel facets, equal bounds and repeated axes
-        points = np.round(points * 2.0) / 2.0
-    found = hull.convex_hull(points)
-    assume(found.status == hull.FULL_RANK)
-    vertices = np.ascontiguousarray(points[found.vertices])
+    vertices, found = _random_hull(count, seed, rounded)
     sample_size = 200
-    axes = search.candidate_axes_kernel(
+    axes, _ = search.candidate_axes_kernel(
         vertices, found.normals, found.areas, found.edges, seed, candidates, pair_edges,
         sample_size, exhaustive,
     )  # fmt: skip
@@ -436,13 +445,6 @@ def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
     np.testing.assert_array_equal(axes, np.array(expected))
 
 
-def _shadow_and_sample(vertices, found, seed, sample_size=200):
-    return (
-        search._shadow_vectors(found.normals, found.areas),
-        search._sample(len(vertices), sample_size, seed),
-    )
-
-
 @settings(max_examples=60, deadline=None)
 @given(
     count=st.integers(6, 400),
@@ -453,14 +455,9 @@ def _shadow_and_sample(vertices, found, seed, sample_size=200):
 def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded, sample_size):
     # The search skips an axis whose bound is above the starts' boxes: sound only if no box
     # with that axis is smaller than its bound (to the slack), box-like hulls included.
-    rng = np.random.default_rng(seed)
-    points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
-    if rounded:  # box-like hulls: shadows that are their own rectangles
-        points = np.round(points * 2.0) / 2.0
-    found = hull.convex_hull(points)
-    assume(found.status == hull.FULL_RANK)
-    vertices = np.ascontiguousarray(points[found.vertices])
-    shadow, sample = _shadow_and_sample(vertices, found, seed, sample_size)
+    vertices, found = _random_hull(count, seed, rounded)
+    sample = search._sample(len(vertices), sample_size, seed)
+    shadow = search._shadow_vectors(found.normals, found.areas)
     axes = np.vstack([np.eye(3), found.normals, _random_rotation(seed)])
     bounds = search._volume_bounds(axes, vertices, sample, shadow)
     volumes = np.array([_turn(vertices, found, axis)[0] for axis in axes])
@@ -471,7 +468,9 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size):
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
     arrays = (vertices, found.normals, found.edges, found.edge_facets)
     work = search.new_work(len(vertices), len(found.normals))
-    axes = search.candidate_axes_kernel(vertices, found.normals, found.areas, found.edges, *knobs)
+    axes, _ = search.candidate_axes_kernel(
+        vertices, found.normals, found.areas, found.edges, *knobs
+    )
     turned = [_turn(vertices, found, axis) for axis in axes]
     order = search._ranking(np.array([v for v, _ in turned]), len(axes))[:starts]
     frames = np.array([turned[i][1] for i in order])
@@ -506,13 +505,7 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     count, seed, candidates, pair_edges, exhaustive, starts, rounds, grid_size, rounded
 ):
     # Axes and grid directions ruled out by their volume bounds change nothing.
-    rng = np.random.default_rng(seed)
-    points = rng.normal(size=(count, 3)) * [1.0, 0.6, 0.3]
-    if rounded:
-        points = np.round(points * 2.0) / 2.0
-    found = hull.convex_hull(points)
-    assume(found.status == hull.FULL_RANK)
-    vertices = np.ascontiguousarray(points[found.vertices])
+    vertices, found = _random_hull(count, seed, rounded)
     # Few candidates, starts and rounds leave the grid directions something to find.
     knobs = (seed, candidates, pair_edges, 200, exhaustive)  # 200: the sample size
     volume, frame = search.search_kernel(
