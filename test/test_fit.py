@@ -445,6 +445,39 @@ def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
     np.testing.assert_array_equal(axes, np.array(expected))
 
 
+def _cube_map_bins(normals, areas):
+    """Every bin of the shadow bound's cube map (6 faces of 4 x 4), empty ones included."""
+    cells = search.SHADOW_CELLS
+    dominant = np.argmax(np.abs(normals), axis=1)
+    rows = np.arange(len(normals))
+    major = normals[rows, dominant]
+    face = 2 * dominant + (major < 0.0)
+    first = normals[rows, (dominant + 1) % 3] / np.abs(major)
+    second = normals[rows, (dominant + 2) % 3] / np.abs(major)
+    i = np.clip(((first + 1.0) * (cells / 2.0)).astype(int), 0, cells - 1)
+    j = np.clip(((second + 1.0) * (cells / 2.0)).astype(int), 0, cells - 1)
+    bins = np.zeros((6 * cells * cells, 3))
+    np.add.at(bins, (face * cells + i) * cells + j, areas[:, None] * normals)  # in facet order
+    return bins
+
+
+@settings(max_examples=60, deadline=None)
+@given(count=st.integers(60, 400), seed=st.integers(0, 2**16), rounded=st.booleans())
+def test_the_binned_shadow_keeps_the_bins_that_hold_area_and_the_same_bounds(count, seed, rounded):
+    # Only bins that hold area are summed: the bounds must be those of every bin, bit for bit.
+    vertices, found = _random_hull(count, seed, rounded)
+    every_bin = _cube_map_bins(found.normals, found.areas)
+    kept = search._binned_area_vectors(found.normals, found.areas)
+    assert np.all(np.any(kept != 0.0, axis=1))
+    np.testing.assert_array_equal(kept, every_bin[np.any(every_bin != 0.0, axis=1)])
+    axes = np.vstack([np.eye(3), found.normals, _random_rotation(seed)])
+    sample = np.arange(len(vertices))
+    np.testing.assert_array_equal(
+        search._volume_bounds(axes, vertices, sample, kept),
+        search._volume_bounds(axes, vertices, sample, every_bin),
+    )
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     count=st.integers(6, 400),
