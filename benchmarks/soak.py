@@ -15,6 +15,10 @@ empty node on the same core, which answers every cloud it takes with one marker 
 nothing else. What it misses is the middleware's and rclpy's cost of moving the clouds (an
 organized 300k frame is a 1.1-megapixel image, 13 MB a message), which no pipeline can win back.
 
+``--publisher-profile config/fastdds_large_clouds.xml`` publishes the clouds with the shipped
+Fast DDS profile (a shared-memory segment that holds whole frames, as a camera driver on the
+robot's computer would load it; the nodes keep the middleware's defaults).
+
 The clouds are published reliable with keep last 1, as camera drivers and bag players do
 (``--reliability best_effort`` to compare: the middleware then loses most large clouds before
 the node sees them). The node runs on one core (``--node-core``, default 1; this process on the
@@ -45,6 +49,8 @@ WARM_UP_S = 60.0
 #: The topic the clouds go to and the one the answers come from (the node's defaults).
 CLOUD_TOPIC = 'cloud_in'
 BOXES_TOPIC = '/decomposer/boxes'
+#: The variable ROS 2 Jazzy's Fast DDS (2.x) reads its XML profile from.
+PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 
 
 @dataclass
@@ -127,14 +133,22 @@ def empty_node() -> int:
     return 0
 
 
-def stream(command: list[str], frames: list, args: argparse.Namespace, client) -> Figures:
+def stream(
+    command: list[str],
+    frames: list,
+    args: argparse.Namespace,
+    client,
+    environment: dict[str, str],
+) -> Figures:
     """Start `command` on the node's core, stream `frames` into it, and measure the answers."""
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import MarkerArray
 
-    node = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    node = subprocess.Popen(
+        command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=environment
+    )
     process = psutil.Process(node.pid)
     process.cpu_affinity([args.node_core])
     sent: dict[tuple[int, int], float] = {}
@@ -238,7 +252,8 @@ def main() -> int:
         choices=('reliable', 'best_effort'),
         default='reliable',
         help="the clouds' QoS (default reliable, as camera drivers and bag players publish; "
-        'best effort loses most large clouds in the middleware before the node sees them)',
+        "best effort loses most large clouds in the middleware's default transport before the "
+        'node sees them)',
     )
     parser.add_argument(
         '--cloud',
@@ -256,6 +271,12 @@ def main() -> int:
         action='store_true',
         help='skip the empty node streamed first (the transport alone, for comparison)',
     )
+    parser.add_argument(
+        '--publisher-profile',
+        type=Path,
+        help='a Fast DDS XML profile loaded by this process, which publishes the clouds, as a '
+        'camera driver would (config/fastdds_large_clouds.xml); the nodes keep the defaults',
+    )
     parser.add_argument('--empty-node', action='store_true', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.empty_node:
@@ -263,6 +284,13 @@ def main() -> int:
 
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    node_environment = dict(os.environ)
+    if args.publisher_profile is not None:
+        if not args.publisher_profile.is_file():
+            parser.error(f'no such profile: {args.publisher_profile}')
+        # Read when this process creates its first participant (rclpy.init, below).
+        os.environ[PROFILE_VARIABLE] = str(args.publisher_profile.resolve())
+        node_environment.pop(PROFILE_VARIABLE, None)
 
     from mvbb_ros.cli.synthetic import organized_frame
     from mvbb_ros.ros.encode import create_cloud_xyz
@@ -303,6 +331,8 @@ def main() -> int:
         + ' '.join(f'{value:.2f}' for value in os.getloadavg()),
         flush=True,
     )
+    profile = os.environ.get(PROFILE_VARIABLE)
+    print(f'publisher transport: {profile or "Fast DDS defaults"}', flush=True)
     nodes = [('decomposer', [str(Path(sys.executable).parent / 'decomposer')])]
     if not args.no_peer:
         empty = [sys.executable, str(Path(__file__).resolve()), '--empty-node']
@@ -312,7 +342,7 @@ def main() -> int:
     measured = {}
     try:
         for name, command in nodes:
-            measured[name] = stream(command, frames, args, client)
+            measured[name] = stream(command, frames, args, client, node_environment)
             report(name, measured[name])
     except RuntimeError as error:
         print(error, file=sys.stderr)

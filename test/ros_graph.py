@@ -10,6 +10,7 @@ middleware's real transport.
 from __future__ import annotations
 
 from collections.abc import Callable
+import os
 from pathlib import Path
 import select
 import subprocess
@@ -123,15 +124,23 @@ class CloudSource:
     :param reliability: ``reliable`` or ``best_effort``.
     :param depth: the publisher's keep-last depth.
     :param topic: the topic it publishes on.
+    :param environment: variables to set in its environment (a middleware profile, say).
     """
 
-    def __init__(self, reliability: str, depth: int = 1, topic: str = 'cloud_in') -> None:
+    def __init__(
+        self,
+        reliability: str,
+        depth: int = 1,
+        topic: str = 'cloud_in',
+        environment: dict[str, str] | None = None,
+    ) -> None:
         script = Path(__file__).resolve().parent / 'cloud_source.py'
         self.process = subprocess.Popen(
             [sys.executable, str(script), reliability, str(depth), topic],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
+            env={**os.environ, **(environment or {})},
         )
         assert self._read(60.0) == 'ready', 'the cloud source did not start'
 

@@ -131,6 +131,7 @@ def test_colcon_install_layout(colcon_install: Path):
     ).is_file()
     assert (prefix / 'share' / 'mvbb_ros' / 'config' / 'decomposer.yaml').is_file()
     assert (prefix / 'share' / 'mvbb_ros' / 'config' / 'mvbb.rviz').is_file()
+    assert (prefix / 'share' / 'mvbb_ros' / 'config' / 'fastdds_large_clouds.xml').is_file()
     assert (prefix / 'share' / 'mvbb_ros' / 'launch' / 'decomposer.launch.py').is_file()
     # Built with a venv's colcon (the README's Ubuntu 24.04 recipe), the executables run with
     # that venv's Python, so `ros2 run` finds the pip-installed open3d and rosbags.
