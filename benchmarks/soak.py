@@ -20,12 +20,12 @@ Fast DDS profile (a shared-memory segment that holds whole frames, as a camera d
 robot's computer would load it; the nodes keep the middleware's defaults).
 
 The clouds are published reliable with keep last 1, as camera drivers and bag players do
-(``--reliability best_effort`` to compare: the middleware then loses most large clouds before
-the node sees them). The node runs on one core (``--node-core``, default 1; this process on the
-other), as on a robot that gives the decomposer one core. The last lines compare the
-decomposer's figures with issue 17's targets: at least 95 % of the clouds answered, p99 latency
-under 50 ms, resident memory growing less than 5 % after the warm-up (the first minute), exit code
-0 on SIGINT.
+(``--reliability best_effort`` to compare: the middleware's default transport then loses most
+large clouds before the node sees them; the profile above does not). The node runs on one core
+(``--node-core``, default 1; this process on the other), as on a robot that gives the
+decomposer one core. The last lines compare the decomposer's figures with issue 17's targets:
+at least 95 % of the clouds answered, p99 latency under 50 ms, resident memory growing less
+than 5 % after the warm-up (the first minute), exit code 0 on SIGINT.
 """
 
 from __future__ import annotations
