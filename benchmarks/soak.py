@@ -104,7 +104,7 @@ def warm_up_s(duration_s: float) -> float:
     return min(WARM_UP_S, duration_s / 3.0)
 
 
-def empty_node() -> int:
+def empty_node(reliability: str) -> int:
     """Run the peer: a node named like the decomposer that answers each cloud and does nothing."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
@@ -120,10 +120,12 @@ def empty_node() -> int:
         marker = Marker(header=cloud.header, action=Marker.DELETEALL)
         publisher.publish(MarkerArray(markers=[marker]))
 
-    reliable = QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE
+    # The stream's reliability (the decomposer's input matches its publishers by itself).
+    policy = (
+        ReliabilityPolicy.RELIABLE if reliability == 'reliable' else ReliabilityPolicy.BEST_EFFORT
     )
-    node.create_subscription(PointCloud2, CLOUD_TOPIC, answer, reliable)
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=policy)
+    node.create_subscription(PointCloud2, CLOUD_TOPIC, answer, qos)
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -280,7 +282,7 @@ def main() -> int:
     parser.add_argument('--empty-node', action='store_true', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.empty_node:
-        return empty_node()
+        return empty_node(args.reliability)
 
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -335,7 +337,13 @@ def main() -> int:
     print(f'publisher transport: {profile or "Fast DDS defaults"}', flush=True)
     nodes = [('decomposer', [str(Path(sys.executable).parent / 'decomposer')])]
     if not args.no_peer:
-        empty = [sys.executable, str(Path(__file__).resolve()), '--empty-node']
+        empty = [
+            sys.executable,
+            str(Path(__file__).resolve()),
+            '--empty-node',
+            '--reliability',
+            args.reliability,
+        ]
         nodes.insert(0, ('empty node (peer)', empty))
     rclpy.init()
     client = rclpy.create_node('soak')
