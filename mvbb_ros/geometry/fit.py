@@ -226,36 +226,41 @@ def fit_kernel(
     pre = 2.0**600 if scale < 1e-290 else 1.0
     inverse = 1.0 / (scale * pre)
     step = max(1, count // PCA_SAMPLE)
+    o0, o1, o2 = origin[0], origin[1], origin[2]
     m0 = 0.0
     m1 = 0.0
     m2 = 0.0
     taken = 0
     for i in range(0, count, step):
-        m0 += (points[i, 0] - origin[0]) * pre * inverse
-        m1 += (points[i, 1] - origin[1]) * pre * inverse
-        m2 += (points[i, 2] - origin[2]) * pre * inverse
+        m0 += (points[i, 0] - o0) * pre * inverse
+        m1 += (points[i, 1] - o1) * pre * inverse
+        m2 += (points[i, 2] - o2) * pre * inverse
         taken += 1
     m0 /= taken
     m1 /= taken
     m2 /= taken
-    covariance = np.zeros((3, 3))
+    # The sums in scalars (registers), in the same order as an array's would be.
+    c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     for i in range(0, count, step):
-        d0 = (points[i, 0] - origin[0]) * pre * inverse - m0
-        d1 = (points[i, 1] - origin[1]) * pre * inverse - m1
-        d2 = (points[i, 2] - origin[2]) * pre * inverse - m2
-        covariance[0, 0] += d0 * d0
-        covariance[0, 1] += d0 * d1
-        covariance[0, 2] += d0 * d2
-        covariance[1, 1] += d1 * d1
-        covariance[1, 2] += d1 * d2
-        covariance[2, 2] += d2 * d2
-    covariance[1, 0] = covariance[0, 1]
-    covariance[2, 0] = covariance[0, 2]
-    covariance[2, 1] = covariance[1, 2]
+        d0 = (points[i, 0] - o0) * pre * inverse - m0
+        d1 = (points[i, 1] - o1) * pre * inverse - m1
+        d2 = (points[i, 2] - o2) * pre * inverse - m2
+        c00 += d0 * d0
+        c01 += d0 * d1
+        c02 += d0 * d2
+        c11 += d1 * d1
+        c12 += d1 * d2
+        c22 += d2 * d2
+    covariance = np.empty((3, 3))
+    covariance[0, 0] = c00
+    covariance[0, 1] = covariance[1, 0] = c01
+    covariance[0, 2] = covariance[2, 0] = c02
+    covariance[1, 1] = c11
+    covariance[1, 2] = covariance[2, 1] = c12
+    covariance[2, 2] = c22
     pca = _symmetric_eigen(covariance)
     # Every point in the PCA frame, and its box there.
     local = np.empty((count, 3))
-    o0, o1, o2 = origin[0], origin[1], origin[2]
     p00, p01, p02 = pca[0, 0], pca[0, 1], pca[0, 2]
     p10, p11, p12 = pca[1, 0], pca[1, 1], pca[1, 2]
     p20, p21, p22 = pca[2, 0], pca[2, 1], pca[2, 2]
