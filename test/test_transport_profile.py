@@ -26,8 +26,8 @@ PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 SHARED_MEMORY = Path('/dev/shm')
 
 
-def _transports() -> tuple[dict[str, ElementTree.Element], list[str], ElementTree.Element]:
-    """Return the declared transports by id, the default participant's and the participant."""
+def _used_transports() -> tuple[dict[str, ElementTree.Element], ElementTree.Element]:
+    """Return the default participant's transports by type, and that participant."""
     root = ElementTree.parse(PROFILE).getroot()
     declared = {
         element.findtext('dds:transport_id', namespaces=NAMESPACE): element
@@ -41,40 +41,34 @@ def _transports() -> tuple[dict[str, ElementTree.Element], list[str], ElementTre
         if element.get('is_default_profile') == 'true'
     ]
     assert len(participants) == 1, 'one default participant profile'
-    used = [
+    names = [
         element.text or ''
         for element in participants[0].iterfind(
             'dds:rtps/dds:userTransports/dds:transport_id', NAMESPACE
         )
     ]
-    return declared, used, participants[0]
+    assert set(names) <= set(declared), 'every used transport is declared'
+    kinds = {
+        declared[name].findtext('dds:type', namespaces=NAMESPACE): declared[name] for name in names
+    }
+    return kinds, participants[0]
 
 
-def _segment_size() -> int:
-    transports, used, _ = _transports()
-    shared = [
-        transports[name]
-        for name in used
-        if transports[name].findtext('dds:type', namespaces=NAMESPACE) == 'SHM'
-    ]
-    return int(shared[0].findtext('dds:segment_size', namespaces=NAMESPACE) or 0)
+def _shared_memory(field: str) -> int:
+    """Return a number of the default participant's shared-memory transport (bytes)."""
+    kinds, _ = _used_transports()
+    return int(kinds['SHM'].findtext(f'dds:{field}', namespaces=NAMESPACE) or 0)
 
 
 def test_the_profile_holds_whole_frames_in_shared_memory_and_keeps_udp():
-    transports, used, participant = _transports()
-    assert set(used) <= set(transports), 'every used transport is declared'
-    kinds = {
-        transports[name].findtext('dds:type', namespaces=NAMESPACE): transports[name]
-        for name in used
-    }
+    kinds, participant = _used_transports()
     # Other machines (RViz on a laptop) still need the network.
     assert set(kinds) == {'SHM', 'UDPv4'}
     assert (
         participant.findtext('dds:rtps/dds:useBuiltinTransports', namespaces=NAMESPACE) == 'false'
     )
-    shared = kinds['SHM']
-    segment = int(shared.findtext('dds:segment_size', namespaces=NAMESPACE) or 0)
-    message = int(shared.findtext('dds:maxMessageSize', namespaces=NAMESPACE) or 0)
+    segment = _shared_memory('segment_size')
+    message = _shared_memory('maxMessageSize')
     assert message >= FRAME_BYTES + 4096, 'a frame with its header goes in one piece'
     assert segment >= 4 * message, 'four frames in flight'
 
@@ -104,11 +98,13 @@ def test_a_publisher_with_the_profile_gets_its_segment_and_its_frames_reach_the_
         with CloudSource('reliable', environment={PROFILE_VARIABLE: str(PROFILE)}) as source:
             # The segment's file holds the profile's bytes and the allocator's own (the
             # defaults give 549,408 bytes here).
+            # The source may make a default-sized segment first: wait for the large one.
+            segment = _shared_memory('segment_size')
             deadline = time.monotonic() + 10.0
-            while time.monotonic() < deadline and not _largest_new(before):
+            while time.monotonic() < deadline and _largest_new(before) < segment:
                 time.sleep(0.05)
-            assert _largest_new(before) >= _segment_size(), (
-                f'no new segment of {_segment_size()} bytes: Fast DDS did not take {PROFILE.name}'
+            assert _largest_new(before) >= segment, (
+                f'no new segment of {segment} bytes: Fast DDS did not take {PROFILE.name}'
             )
             assert graph.spin_until(
                 lambda: graph.node.cloud_input.matched >= 1 and source.subscription_count() >= 1,
