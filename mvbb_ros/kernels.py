@@ -34,6 +34,7 @@ from numba.core.registry import CPUDispatcher
 
 #: Every module with numba kernels, each defining ``warm_up()``.
 KERNEL_MODULES: tuple[str, ...] = (
+    'mvbb_ros.geometry.box',
     'mvbb_ros.geometry.cells',
     'mvbb_ros.pipeline.decode',
     'mvbb_ros.pipeline.filtering',

@@ -2,7 +2,7 @@
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from mvbb_ros.geometry.box import Box, EDGES, FACE_NAMES, right_handed
+from mvbb_ros.geometry.box import Box, EDGES, FACE_NAMES, right_handed, rotation_quaternions
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -69,6 +69,31 @@ def test_volume_and_quaternion():
     np.testing.assert_allclose(
         Rotation.from_quat(quaternion).as_matrix(), box.rotation, atol=1e-12
     )
+
+
+_UNIT_VECTORS = st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=4, max_size=4).filter(
+    lambda q: 1e-3 < float(np.linalg.norm(q))
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_UNIT_VECTORS, min_size=1, max_size=8))
+def test_quaternions_give_back_the_rotations(vectors):
+    # Any unit quaternion (half turns, turns about one axis, the identity among them).
+    turns = Rotation.from_quat(np.array(vectors)).as_matrix()
+    corners = [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])]
+    matrices = np.concatenate([turns, corners])
+    quaternions = rotation_quaternions(matrices)
+    np.testing.assert_allclose(np.linalg.norm(quaternions, axis=1), 1.0, atol=1e-12)
+    assert np.all(quaternions[:, 3] >= 0.0)
+    np.testing.assert_allclose(Rotation.from_quat(quaternions).as_matrix(), matrices, atol=1e-12)
+
+
+def test_quaternions_refuse_what_is_not_a_rotation():
+    with pytest.raises(ValueError, match='determinant'):
+        rotation_quaternions(np.diag([1.0, 1.0, -1.0])[None])
+    with pytest.raises(ValueError, match=r'\(N, 3, 3\)'):
+        rotation_quaternions(np.eye(3))
 
 
 def test_enclosing_is_tight_and_keeps_precision_far_away():

@@ -11,9 +11,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 import itertools
+import math
 from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min, FloatArray
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -227,8 +229,62 @@ def box_quaternions(boxes: Sequence[Box]) -> FloatArray:
     return rotation_quaternions(np.stack([box.rotation for box in boxes]))
 
 
+@nb.njit('float64[:, :](float64[:, :, :])', cache=True)
+def _quaternions(matrices: FloatArray) -> FloatArray:
+    """
+    Return the unit quaternions (x, y, z, w, w >= 0) of rotation matrices (Markley's method).
+
+    Per matrix, the quaternion component of largest magnitude is computed first, from the
+    largest of the trace and the diagonal (no square root of a small difference), the others
+    from sums and differences of the off-diagonal entries; then it is normalized.
+    """
+    count = matrices.shape[0]
+    out = np.empty((count, 4))
+    for n in range(count):
+        m = matrices[n]
+        trace = m[0, 0] + m[1, 1] + m[2, 2]
+        largest = 3
+        value = trace
+        for i in range(3):
+            if m[i, i] > value:
+                largest = i
+                value = m[i, i]
+        q = out[n]
+        if largest == 3:
+            q[0] = m[2, 1] - m[1, 2]
+            q[1] = m[0, 2] - m[2, 0]
+            q[2] = m[1, 0] - m[0, 1]
+            q[3] = 1.0 + trace
+        else:
+            i = largest
+            j = (i + 1) % 3
+            k = (j + 1) % 3
+            q[i] = 1.0 - trace + 2.0 * m[i, i]
+            q[j] = m[j, i] + m[i, j]
+            q[k] = m[k, i] + m[i, k]
+            q[3] = m[k, j] - m[j, k]
+        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        sign = -1.0 if q[3] < 0.0 else 1.0
+        for axis in range(4):
+            q[axis] *= sign / norm
+    return out
+
+
 def rotation_quaternions(matrices: FloatArray) -> FloatArray:
-    """Return (N, 4) unit quaternions x, y, z, w with w >= 0 of (N, 3, 3) rotations, N >= 1."""
-    quaternions = Rotation.from_matrix(matrices).as_quat()
-    quaternions[quaternions[:, 3] < 0.0] *= -1.0
-    return quaternions
+    """
+    Return (N, 4) unit quaternions x, y, z, w with w >= 0 of (N, 3, 3) rotations.
+
+    :raises ValueError: when `matrices` is not (N, 3, 3) or a matrix is not a rotation (its
+        determinant not near +1: a reflection or a degenerate frame).
+    """
+    stack = np.ascontiguousarray(matrices, dtype=np.float64)
+    if stack.ndim != 3 or stack.shape[1:] != (3, 3):
+        raise ValueError(f'rotation_quaternions needs (N, 3, 3) matrices, got {stack.shape}')
+    if len(stack) and not np.all(np.abs(np.linalg.det(stack) - 1.0) <= 1e-6):
+        raise ValueError('rotation_quaternions needs rotations (determinant +1)')
+    return _quaternions(stack)
+
+
+def warm_up() -> None:
+    """Run the module's kernel once (see :mod:`mvbb_ros.kernels`)."""
+    _quaternions(np.eye(3)[None])
