@@ -460,7 +460,10 @@ def quickhull_kernel(points: np.ndarray, tolerance: float) -> tuple:
     if rank < 3:
         return _empty_hull(rank)
 
-    capacity = 64
+    # Room for the facets made on the way, dead ones included (a hull of N points makes about
+    # 9 sqrt(N), at most 15 sqrt(N) on the parts of the shared scans): growing the arrays
+    # repeats a facet's search.
+    capacity = max(64, 16 * int(math.sqrt(count)))
     corners = np.empty((capacity, 3), dtype=np.int64)
     neighbours = np.empty((capacity, 3), dtype=np.int64)
     planes = np.empty((capacity, 4))
