@@ -34,7 +34,7 @@ import platform
 import sys
 import time
 
-from mvbb_ros.cli.atomic import atomic_open
+from mvbb_ros.common.atomic import atomic_open
 from mvbb_ros.evaluation.experiment import (
     CLAIM_CANDIDATE_FRACTION,
     CLAIM_QUALITY_FRACTION,

@@ -19,7 +19,7 @@ from builtin_interfaces.msg import Time
 from conftest import require_shared_data
 from geometry_msgs.msg import PoseArray
 from mvbb_ros.cli.main import main
-from mvbb_ros.cli.progress import ProgressBar
+from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.geometry.grasps import GraspStats
 from mvbb_ros.pipeline import explain
 from mvbb_ros.pipeline.decode import read_xyz

@@ -118,14 +118,15 @@ def test_every_module_is_imported_by_the_layer_test():
     assert 'mvbb_ros.ros.node' in MODULES and 'mvbb_ros.geometry.fit' in MODULES
 
 
-#: Which layers each layer may import at module level (arrays is shared by all; kernels, the
-#: cache warm-up, by the programs that start: the node and the command line).
+#: Which layers each layer may import at module level (arrays and common are shared by all;
+#: kernels, the cache warm-up, by the programs that start: the node and the command line).
 ALLOWED = {
-    'geometry': {'arrays', 'geometry'},
-    'pipeline': {'arrays', 'geometry', 'pipeline'},
-    'evaluation': {'arrays', 'geometry', 'evaluation', 'cli.atomic'},
-    'ros': {'arrays', 'kernels', 'geometry', 'pipeline', 'ros', 'cli.atomic', 'cli.progress'},
-    'cli': {'arrays', 'kernels', 'geometry', 'pipeline', 'evaluation', 'cli'},
+    'common': {'common'},
+    'geometry': {'arrays', 'common', 'geometry'},
+    'pipeline': {'arrays', 'common', 'geometry', 'pipeline'},
+    'evaluation': {'arrays', 'common', 'geometry', 'evaluation'},
+    'ros': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'ros'},
+    'cli': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'evaluation', 'cli'},
 }
 
 

@@ -19,8 +19,8 @@ import sys
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from mvbb_ros.cli.atomic import atomic_path
 from mvbb_ros.cli.render import Panel, render_panels
+from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.evaluation.views import load_table_object, MODEL_BY_NAME, real_scans, single_views
 from mvbb_ros.geometry.box import Box, EDGES
 from mvbb_ros.geometry.decomposition import decompose

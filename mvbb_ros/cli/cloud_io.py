@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from mvbb_ros.cli.atomic import atomic_open, atomic_path
+from mvbb_ros.common.atomic import atomic_open, atomic_path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 import open3d as o3d

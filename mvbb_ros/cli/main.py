@@ -24,9 +24,9 @@ import threading
 import time
 from typing import Any, TYPE_CHECKING
 
-from mvbb_ros.cli.atomic import atomic_open
 from mvbb_ros.cli.options import add_settings_options, settings_from_args
-from mvbb_ros.cli.progress import ProgressBar
+from mvbb_ros.common.atomic import atomic_open
+from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.evaluation.gripper import (
     DEFAULT_DEPTH_FACTOR,
     DEFAULT_WIDTH_FACTOR,

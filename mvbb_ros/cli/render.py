@@ -13,8 +13,8 @@ A grasp is drawn as a parallel-jaw gripper seen from the side: its fingertips at
 ``position +- width / 2 * closing``, fingers and palm behind them (against ``approach``) and a
 stem; the best (first) grasp in red.
 
-Files are written atomically (:func:`mvbb_ros.cli.atomic.atomic_path`): a reader never sees a half
-written picture and a failure leaves an existing file untouched.
+Files are written atomically (:func:`mvbb_ros.common.atomic.atomic_path`): a reader never sees
+a half written picture and a failure leaves an existing file untouched.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from matplotlib.figure import Figure, SubFigure
 from matplotlib.lines import Line2D
 from matplotlib.text import Annotation
 from mvbb_ros.arrays import cross
-from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.geometry.box import EDGES
 from mvbb_ros.geometry.fit import minimum_bounding_box
 import numpy as np

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.evaluation.experiment import QualityComparison
 from mvbb_ros.evaluation.wrench import DEFAULT_FRICTION
 

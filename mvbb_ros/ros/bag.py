@@ -27,7 +27,7 @@ from types import TracebackType
 from typing import Any, Final
 
 from builtin_interfaces.msg import Time
-from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.ros.encode import create_cloud_xyz, to_rclpy_cloud
 from numpy.typing import ArrayLike
 from rclpy.serialization import deserialize_message, serialize_message

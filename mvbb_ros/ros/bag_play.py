@@ -31,7 +31,7 @@ import time
 from typing import TextIO
 
 from builtin_interfaces.msg import Time
-from mvbb_ros.cli.progress import ProgressBar
+from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.ros.bag import BagCloud, CloudBag
 import rclpy
 from rclpy.context import Context

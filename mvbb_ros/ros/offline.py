@@ -5,7 +5,7 @@ Run the node's pipeline over every cloud of a bag, offline, and write the result
 writes :func:`mvbb_ros.ros.messages.output_messages` (what the node publishes) into a new
 rosbag2 at the input's timestamps, optionally with the input clouds, so the result plays in RViz
 (``ros2 bag play``) or Foxglove. The output is written into a temporary directory beside it and
-renamed into place only when complete (:func:`mvbb_ros.cli.atomic.atomic_path`): a failure
+renamed into place only when complete (:func:`mvbb_ros.common.atomic.atomic_path`): a failure
 leaves nothing behind. :func:`format_row` and :func:`format_totals` make the table that
 `mvbb bag process` prints.
 """
@@ -20,7 +20,7 @@ import shutil
 import time
 from typing import Any
 
-from mvbb_ros.cli.atomic import atomic_path
+from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
