@@ -18,7 +18,7 @@ Units: the GraspIt! models are in millimetres, the bunny in metres, Homer and th
 unitless. Every length of the experiment (gripper, standoff, sphere) is a multiple of each
 model's diameter and the qualities are unit-free, so the models are used as they are.
 
-Run (about ten minutes on two cores)::
+Run (how long it takes: ``docs/performance.md``)::
 
     .venv/bin/python benchmarks/grasp_quality.py
     .venv/bin/python benchmarks/grasp_quality.py --models mug --spherical-step 20  # quick look

@@ -1,7 +1,7 @@
 """
 Per-frame cost of the whole pipeline on one core, against Open3D's hand-written filter chain.
 
-    .venv/bin/python benchmarks/pipeline.py            # about two minutes
+    .venv/bin/python benchmarks/pipeline.py            # every case and the scaling
     .venv/bin/python benchmarks/pipeline.py --quick    # fewer frames, for a first look
 
 What runs, per frame, is what the node does for one cloud: :func:`mvbb_ros.pipeline.process.

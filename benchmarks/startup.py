@@ -12,7 +12,7 @@ before the process is spawned to the moment the publisher sees the node's subscr
 Warm: numba's cache as ``tools/bootstrap.sh`` left it. Cold: ``NUMBA_CACHE_DIR`` points to a new
 empty folder, so every kernel is compiled (the node says so in one log line, which is shown);
 the folder's size afterwards is the cache size. Also printed: how long importing the node's
-module takes and whether it loads Open3D (it must not: importing Open3D alone takes about 2 s).
+module takes and whether it loads Open3D (it must not: importing Open3D alone is slow).
 """
 
 from __future__ import annotations

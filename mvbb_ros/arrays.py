@@ -30,9 +30,9 @@ IntArray = NDArray[np.int32]
 
 
 # Column reductions -----------------------------------------------------------------------------
-# numpy reduces an (N, 3) array along axis 0 with one ufunc loop of 3 values per row: 1.1 ms on
-# 36,000 points and 10 ms on 300,000, against 0.07 and 0.6 ms column by column (numpy 1.26 and
-# 2.4 alike). The same values: a minimum or maximum does not depend on the order it is taken in.
+# numpy reduces an (N, 3) array along axis 0 with one ufunc loop of 3 values per row, many times
+# slower than column by column (numpy 1.26 and 2.4 alike; ``docs/performance.md``). The same
+# values: a minimum or maximum does not depend on the order it is taken in.
 
 
 def column_min(values: NDArray[_Number]) -> NDArray[_Number]:
@@ -51,7 +51,7 @@ def column_span(values: NDArray[_Number]) -> NDArray[_Number]:
 
 
 # Vector products -------------------------------------------------------------------------------
-# np.cross moves axes and checks shapes: 20-30 microseconds a call, whatever the size, and the
+# np.cross moves axes and checks shapes, a fixed cost a call whatever the size, and the
 # grasps, the refinement and the completion call it a dozen times a cloud. The same products in
 # the same order (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0), so the same values bit for bit.
 

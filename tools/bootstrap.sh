@@ -3,7 +3,7 @@
 #   1. the system library libusb-1.0-0 that Open3D's wheel links against (apt, when root);
 #   2. a virtual environment in .venv/ at the repository root (reused when it exists);
 #   3. the pinned Python dependencies and the package itself (editable);
-#   4. numba's cache of the compiled kernels, warmed (compiled once, 20-40 s; then 2 s to check),
+#   4. numba's cache of the compiled kernels, warmed (compiled once, then only checked),
 #      so that the tests, the demo and the node start warm.
 # Called by `make demo` and `make test`; safe to run again at any time.
 set -euo pipefail

@@ -114,7 +114,7 @@ class Box:
 
         For compiled kernels' outputs: fresh float64 arrays of shapes (3,), (3, 3) and (3,),
         finite, the rotation orthonormal and right-handed, the extents >= 0 (what the
-        constructor checks costs about 70 microseconds, as much as a small fit). The arrays are
+        constructor checks costs as much as a small fit). The arrays are
         taken over and made read-only; the caller must not keep writable views of them.
         """
         box = object.__new__(cls)

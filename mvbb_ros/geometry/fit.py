@@ -623,12 +623,12 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
 #: The knobs of a decomposition's part fits: half the candidate axes and starts, no grid rounds,
-#: and parts of 1,000 points or more hulled on a 14 x 14 grid coreset (the hull was half of a
-#: part fit's time). Measured with ``benchmarks/decompose.py --parts`` against the default search
-#: on the 3,218 part fits of the shared scans and models at t = 0.90/0.94/0.98: volume median
-#: 1.0000 x, mean 1.0006 x, 99th percentile 1.009 x, worst 1.044 x (16 x 16 cells: 1.0006, 1.010,
-#: 1.044; 12 x 12: 1.0008, 1.011, 1.044 but Homer's count at t = 0.98 goes from 8 to 14). The
-#: Bunny at t = 0.98 in 32.7 ms against 35.2 with 16 x 16 cells (40 alternating runs).
+#: and parts of 1,000 points or more hulled on a 14 x 14 grid coreset (the hull was the largest
+#: share of a part fit). Measured with ``benchmarks/decompose.py --parts`` against the default
+#: search on the 3,218 part fits of the shared scans and models at t = 0.90/0.94/0.98: volume
+#: median 1.0000 x, mean 1.0006 x, 99th percentile 1.009 x, worst 1.044 x (16 x 16 cells: 1.0006,
+#: 1.010, 1.044; 12 x 12: 1.0008, 1.011, 1.044 but Homer's count at t = 0.98 goes from 8 to 14).
+#: Timings: ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
     'candidates': 16,
     'starts': 4,
@@ -638,9 +638,9 @@ PART_SEARCH: dict[str, int] = {
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
-#: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices:
-#: the Bunny's root fit 8.1 -> 2.9 ms; on the 11 shared clouds of 16,384 points or more the root
-#: volume is median 1.0002 x, at most 1.0068 x the full hull's (``docs/performance.md``).
+#: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
+#: the 11 shared clouds of 16,384 points or more the root volume is median 1.0002 x, at most 1.0068
+#: x the full hull's (``docs/performance.md``).
 ROOT_SEARCH: dict[str, int] = {'coreset_min': 16384}
 
 

@@ -33,8 +33,8 @@ as well).
 point of every column of a grid, along each axis. Large clouds are hulled on it (every point is
 then within one column width of the coreset's hull, across the column).
 
-Cost: O(N) for the coreset; quickhull O(N log H) expected for N points and H hull vertices (about
-30-50 ns a point on the Kinect and stereo scans, about half a microsecond per hull vertex).
+Cost: O(N) for the coreset; quickhull O(N log H) expected for N points and H hull vertices
+(measured in ``docs/performance.md``).
 """
 
 from __future__ import annotations

@@ -46,14 +46,14 @@ their own.
 
 Speed comes from specialising that one loop, not from a second implementation: it is inlined
 three times, with the constants (FLOAT32 x 3, little-endian), with (FLOAT64 x 3,
-little-endian), and with the cloud's own layout (any other layout, about 3 x slower), so that in
+little-endian), and with the cloud's own layout (any other layout, slower), so that in
 the common cases the compiler folds the datatype switch away and merges the byte loads into one
 load per coordinate. Offsets are unsigned 64-bit integers: numba then emits no negative-index
-wrap-around code, which costs a branch per byte and blocks merging the loads (3-4 x slower).
-The constants are passed as int64 values, not numba literals (literals compile every helper
-once per constant: 3 x the compile time). The kernel does no bounds checks (numba never does):
-the layout and the data length are checked in Python before it runs, so a malformed header
-cannot make it read outside the buffer.
+wrap-around code, which costs a branch per byte and blocks merging the loads.
+The constants are passed as int64 values, not numba literals (literals compile every helper once
+per constant, multiplying the compile time). The kernel does no bounds checks (numba never does):
+the layout and the data length are checked in Python before it runs, so a malformed header cannot
+make it read outside the buffer.
 
 Organized clouds: :func:`read_xyz_grid` keeps the ``(height, width, 3)`` grid with its non-finite
 points, so callers that need pixel structure can do::

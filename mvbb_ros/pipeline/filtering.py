@@ -8,8 +8,8 @@ evenly spaced voxel centroids than on raw sensor points. The voxel grid and the 
 compiled kernels here (numba); the statistical outlier removal is in
 :mod:`mvbb_ros.pipeline.outliers`. Both compute exactly what Open3D's ``voxel_down_sample`` and
 ``remove_statistical_outlier`` compute (``test/test_filtering.py`` and ``test/test_outliers.py``
-compare them bit for bit), in about half of the time on one core, and the pipeline needs no
-Open3D (importing it alone takes about 2 s).
+compare them bit for bit), faster on one core (``docs/performance.md``), and the pipeline needs
+no Open3D, whose import alone the node's start must not pay.
 
 The crop and the decoder
 ------------------------
@@ -31,8 +31,8 @@ hash order. The decomposition depends on the order of its points (the box fit sa
 the order is a choice with consequences: sorted, the same points in any order give the same
 centroids in the same order, so the same boxes (a driver or a file that lists the points
 differently changes nothing), and the boxes are those of the numpy grid this replaced. The sort
-costs about 0.05 ms for the 1,000 voxels of a 300k-point object frame (first-met order would
-have made the boxes of one shared scan in 30 change with the row order of the sensor).
+orders the occupied voxels, not the points, so it is cheap (first-met order would have made
+the boxes of one shared scan in 30 change with the row order of the sensor).
 
 Two passes over the points, float32 or float64 as they come from the decoder (no float64 copy):
 
@@ -45,14 +45,14 @@ Why the second pass is fast:
 
 - *SIMD divisions.* Each block of 512 points first gets its voxel indices in a plain loop that
   compiles to vector divisions (:func:`_block_voxels`); one float64 division at a time was
-  60 % of the pass.
+  most of the pass.
 - *Runs are summed in registers.* While consecutive points stay in one voxel (about 6 points
   per run on a depth frame at 5 mm), the voxel's sums live in registers; they are loaded when
   the run starts and stored when it ends, so every point is still added in input order (the
   same rounding as Open3D's per-point sums).
 - *Lookup on change only*, in an open-addressing hash table keyed by the three voxel indices.
   One structure for every extent: a segmented object and a lidar sweep over hundreds of metres
-  alike (a dense grid of slot numbers measured 8-20 % faster on objects, not worth a second
+  alike (a dense grid of slot numbers was only a little faster on objects, not worth a second
   implementation). Slots and table start at 4096 and double, so memory is linear in the number
   of occupied voxels, never in the extent.
 
@@ -93,7 +93,7 @@ def _points_type(dtype: Any) -> Any:
 
 
 #: A crop box as a tuple (x0, y0, z0, x1, y1, z1): scalars the compiler keeps in registers
-#: (read from an array inside the loop, the bounds made the pass 7 x slower).
+#: (read from an array inside the loop, the bounds made the pass several times slower).
 BOX = types.UniTuple(types.float64, 6)
 
 
@@ -212,7 +212,7 @@ def _block_voxels(
     Voxel indices of points ``start .. start + count`` (exact float64 division) and crop flags.
 
     A plain loop over a flat view with unsigned indices, so that it compiles to SIMD divisions
-    (about 4 x faster than one division at a time). Indices are clamped to ``[0, top]``: a
+    (several times faster than one division at a time). Indices are clamped to ``[0, top]``: a
     point outside the crop box may be anywhere, and the clamp keeps every index inside the grid
     whatever the points are (a kept point inside the bounds is never clamped).
 
@@ -280,7 +280,7 @@ def _group(
     still added to its voxel's sum in input order. Returns early, before taking a new slot, when
     the slot arrays are full or the hash table would be more than half full: the caller grows
     them and calls again. The arrays are arguments, never reassigned here (reassigning arrays
-    inside the loop made numba's code 2.4 x slower).
+    inside the loop made numba's code count references, much slower).
 
     :return: the index of the next point to add (``len(points)`` when done), or -1 when a
         point falls outside the grid (the bounds given do not hold the points).

@@ -31,8 +31,8 @@ squared distances sorted by insertion. A kd-tree rather than a uniform grid: it 
 density, which on a lidar sweep's voxel centroids varies by orders of magnitude between near
 and far (a grid sized for the near field makes the far queries scan thousands of empty cells).
 
-Cost: about 1.3 us per point at k = 20 on this machine (Zen 4, one core), 25-40 % below
-Open3D's own ``remove_statistical_outlier`` on the same centroids; the profile is dominated by
+Cost: below Open3D's own ``remove_statistical_outlier`` on the same centroids
+(``docs/performance.md``); the profile is dominated by
 mispredicted branches in the k-best insertion and the tree walk, not by arithmetic. Tried and
 measured no faster: a max-heap with a final sort, leaf sizes 6 to 64, a branch-free vectorised
 insertion, collecting candidates within the bound and sorting them by rank counting.

@@ -3,9 +3,9 @@ The ``decomposer`` executable: join the ROS graph, then load the geometry and ru
 
 DDS discovery runs in the middleware's threads from the moment the process's participant
 exists, which in rclpy is when the context's first node is created. Importing the node's
-module loads numba, the kernels and the pipeline (about 1 s); a participant created after that
-and a subscription created at once race the discovery of the endpoint on this machine: the
-peers see the subscription at once or, when the first announcements are missed, 2.5 s later.
+module loads numba, the kernels and the pipeline (most of the start); a participant created
+after that and a subscription created at once race the discovery of the endpoint: the peers
+see the subscription at once or, when the first announcements are missed, seconds later.
 So a hidden start-up node (:data:`STARTUP_NODE`) creates the participant first, discovery is
 done while the module loads, and the node's subscription is announced to peers that already
 know the participant (measured in ``docs/performance.md``, start-up).
@@ -52,7 +52,7 @@ def main(args: Sequence[str] | None = None) -> int:
         finally:
             startup.destroy_node()
         # What start-up loaded (numba, scipy, rclpy: some 140k objects) stays for good; frozen,
-        # the garbage collector's full passes skip it instead of taking 100-300 ms of a cloud.
+        # the garbage collector's full passes skip it instead of walking it during a cloud.
         gc.freeze()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

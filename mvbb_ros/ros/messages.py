@@ -143,7 +143,7 @@ def box_markers(
             array.markers.append(cube)
         edges = _marker(header, f'{prefix}edges', index, Marker.LINE_LIST)
         # Eight Points per box, each listed by the (two or three) edges that meet there: the
-        # same serialized message as 24 separate Points, for a third of the construction cost.
+        # same serialized message as 24 separate Points, cheaper to construct.
         corners = [Point(x=x, y=y, z=z) for x, y, z in box.corners().tolist()]
         edges.points = [corners[k] for edge in EDGES for k in edge]
         edges.scale.x = width

@@ -203,7 +203,7 @@ class DecomposerNode(Node):
             'clouds_reprocessed': 0,
         }
         # Before the subscription: the first cloud must not wait for the compiler (a first run
-        # compiles for 20-40 s and says so in one line; from the cache this takes 0.2 s).
+        # compiles the kernels and says so in one line; later runs load them from the cache).
         warm_up_logged(self.get_logger().info)
         self._input = CloudInput(
             self,
