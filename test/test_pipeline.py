@@ -196,3 +196,28 @@ def test_an_absurd_float32_cloud_is_refused_with_its_finite_span():
     reason = implausible_extent(points)
     assert reason is not None and '6.8e+38 x 0.2 x 0.2 m' in reason, reason
     assert implausible_extent(points[:, [1, 2, 1]] * np.float32(10.0)) is None
+
+
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+@pytest.mark.parametrize(('voxel_size', 'outlier_neighbors'), [(0.0, 0), (0.0, 20), (0.005, 0)])
+def test_any_filter_switched_off_still_processes_read_only_clouds(
+    dtype, voxel_size, outlier_neighbors
+):
+    """Both filters off hand the caller's (read-only) array straight to the compiled stages."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(4)
+    box = rng.uniform((-0.03, -0.02, 0.5), (0.03, 0.02, 0.56), size=(2000, 3)).astype(dtype)
+    box.setflags(write=False)
+    before = box.copy()
+    node = PipelineSettings()
+    settings = replace(
+        node,
+        filtering=replace(
+            node.filtering, voxel_size=voxel_size, outlier_neighbors=outlier_neighbors
+        ),
+    )
+    result = process_points(box, settings)
+    assert result.warning is None
+    assert result.objects and result.objects[0].decomposition.leaves
+    np.testing.assert_array_equal(box, before)

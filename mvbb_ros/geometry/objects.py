@@ -103,6 +103,8 @@ def separate_objects(
         the lower first index).
     """
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if not pts.flags.writeable:  # the compiled kernel's signature takes writable arrays
+        pts = pts.copy()
     if tolerance <= 0.0 or len(pts) < 2:
         return [np.arange(len(pts), dtype=np.intp)] if len(pts) >= min_points else []
     labels = _cluster_labels(pts, float(tolerance)).astype(np.intp)
