@@ -174,18 +174,18 @@ class PackageCacheLocator(caching._CacheLocator):
             Path(py_file).resolve().relative_to(PACKAGE_ROOT)
         except (OSError, ValueError):
             return None
-        others = [
+        others: list[Any] = [
             other
             for other in caching.CacheImpl._locator_classes
             if not getattr(other, 'wraps_numba_locator', False)
         ]
         # numba's locator for the module's own __pycache__ (named with or without an underscore).
-        in_tree = next(
+        in_tree: Any = next(
             (other for other in others if other.__name__.endswith('InTreeCacheLocator')), None
         )
         shipped = (
             in_tree is not None
-            and not config.CACHE_DIR
+            and not getattr(config, 'CACHE_DIR', '')
             and not os.access(Path(py_file).parent, os.W_OK)
             and _ships_cache(py_func, py_file)
         )
