@@ -20,6 +20,7 @@ import textwrap
 from conftest import REPO_ROOT
 from mvbb_ros import kernel_cache, kernels
 import pytest
+from test_kernels import read_only_command
 
 PACKAGE = REPO_ROOT / 'mvbb_ros'
 
@@ -222,26 +223,25 @@ def _probe_package(tmp_path: Path) -> Path:
     root = tmp_path / 'install'
     shutil.copytree(PACKAGE, root / 'mvbb_ros', ignore=shutil.ignore_patterns('__pycache__'))
     (root / 'mvbb_ros' / 'geometry' / '_probe_kernel.py').write_text(textwrap.dedent(KERNEL))
-    (tmp_path / 'home').mkdir()
+    for home in (tmp_path / 'home', root / 'home'):  # root/home is read-only with the install
+        home.mkdir()
     return root
 
 
 def _run_probe(
-    root: Path, home: Path, read_only: tuple[Path, ...] = ()
+    root: Path, home: Path, read_only: bool = False
 ) -> tuple[tuple[int, int, int], str]:
-    """Run the probe kernel from `root`, with the `read_only` folders mounted read-only."""
+    """Run the probe kernel from `root` with `home` as HOME; `read_only`: `root` read-only."""
     env = {key: value for key, value in os.environ.items() if key != 'NUMBA_CACHE_DIR'}
     env.update(PYTHONPATH=str(root), HOME=str(home), XDG_CACHE_HOME=str(home / '.cache'))
-    command = [sys.executable, '-c', KERNEL_PROBE]
-    if read_only:
-        mounts = ' && '.join(
-            f'mount --bind {folder} {folder} && mount -o remount,bind,ro {folder}'
-            for folder in read_only
-        )
-        script = f'{mounts} && exec "$@"'
-        command = ['unshare', '-m', '--propagation', 'private', 'sh', '-c', script, 'sh', *command]
+    prefix = read_only_command(root) if read_only else []
     completed = subprocess.run(
-        command, cwd=root, env=env, capture_output=True, text=True, timeout=240
+        [*prefix, sys.executable, '-c', KERNEL_PROBE],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=240,
     )
     assert completed.returncode == 0, completed.stderr
     where, value, hits, misses = completed.stdout.split()
@@ -264,29 +264,16 @@ def test_a_torn_cache_file_is_discarded_and_the_kernel_compiled_again(tmp_path, 
     assert _run_probe(root, home) == ((42, 1, 0), '')  # healed: the new entry loads
 
 
-def _can_mount_read_only(tmp_path: Path) -> bool:
-    folder = tmp_path / 'mount_probe'
-    folder.mkdir()
-    script = f'mount --bind {folder} {folder} && mount -o remount,bind,ro {folder}'
-    try:
-        command = ['unshare', '-m', '--propagation', 'private', 'sh', '-c', script]
-        return subprocess.run(command, capture_output=True, timeout=30).returncode == 0
-    except OSError:
-        return False
-
-
 def test_a_read_only_install_uses_its_shipped_cache_and_compiles_the_rest_in_memory(tmp_path):
-    if not _can_mount_read_only(tmp_path):
-        pytest.skip('needs `unshare -m` and bind mounts (root) to make a read-only install')
     root = _probe_package(tmp_path)
-    home = tmp_path / 'home'
-    assert _run_probe(root, home) == ((42, 0, 1), '')  # the build ships a warm cache
-    assert _run_probe(root, home, read_only=(root, home)) == ((42, 1, 0), '')
-    assert _run_probe(root, home, read_only=(root,)) == ((42, 1, 0), '')  # not compiled again
-    assert not list(home.rglob('*.nbi'))
+    writable_home, read_only_home = tmp_path / 'home', root / 'home'
+    assert _run_probe(root, writable_home) == ((42, 0, 1), '')  # the build ships a warm cache
+    assert _run_probe(root, read_only_home, read_only=True) == ((42, 1, 0), '')
+    assert _run_probe(root, writable_home, read_only=True) == ((42, 1, 0), '')  # not compiled
+    assert not list(writable_home.rglob('*.nbi'))
     for path in (root / 'mvbb_ros' / 'geometry' / '__pycache__').glob('_probe_kernel.*'):
         path.unlink()  # shipped without a cache: nowhere to write one
-    counts, stderr = _run_probe(root, home, read_only=(root, home))
+    counts, stderr = _run_probe(root, read_only_home, read_only=True)
     assert counts == (42, 0, 1)
     assert 'KernelCacheWarning' in stderr and 'cannot be written' in stderr
-    assert not list(home.rglob('*.nbi'))
+    assert not list(read_only_home.rglob('*.nbi'))
