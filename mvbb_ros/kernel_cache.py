@@ -200,6 +200,16 @@ class PackageCacheLocator(caching._CacheLocator):
         return None
 
 
+def _probe() -> None:
+    """Stand-in function for asking where a module's kernels are cached."""
+
+
+def cache_folder(module_file: Path) -> Path | None:
+    """Return the folder that holds (or would hold) the kernel caches of a package module."""
+    locator = PackageCacheLocator.from_function(_probe, str(module_file))  # type: ignore[arg-type]
+    return None if locator is None else Path(locator.get_cache_path())
+
+
 def _is_ours(cache: Any) -> bool:
     """Whether a numba cache belongs to a kernel of this package."""
     return isinstance(getattr(cache._impl, 'locator', None), PackageCacheLocator)

@@ -318,8 +318,9 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
 
 def warm_kernels() -> None:
     """Warm the compiled kernels before the first cloud; one line on stderr when compiling."""
-    from mvbb_ros.kernels import warm_up_logged
+    from mvbb_ros.kernels import announce_cold_start, warm_up_logged
 
+    announce_cold_start(lambda line: print(line, file=sys.stderr, flush=True))
     warm_up_logged(lambda line: print(line, file=sys.stderr, flush=True))
 
 

@@ -38,6 +38,9 @@ def main(args: Sequence[str] | None = None) -> int:
             enable_rosout=False,
             start_parameter_services=False,
         )
+        from mvbb_ros.kernels import announce_cold_start
+
+        announce_cold_start(rclpy.logging.get_logger('decomposer').info)
         from mvbb_ros.ros.node import DecomposerNode, NODE_NAME, UnknownParameterError
 
         try:
