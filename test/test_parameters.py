@@ -18,6 +18,7 @@ from mvbb_ros.pipeline.settings_text import parse_assignments, read_params_file
 from mvbb_ros.ros.encode import create_cloud_xyz
 import mvbb_ros.ros.node
 from mvbb_ros.ros.node import DecomposerNode, UnknownParameterError
+import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType
@@ -66,6 +67,24 @@ def test_crop_corners_must_be_ordered():
         settings_from_mapping({'crop_min': [0, 0, 1], 'crop_max': [1, 1, 0]})
     settings = settings_from_mapping({'crop_min': [0, 0, 0], 'crop_max': [1, 1, 1]})
     assert settings.filtering.crop_max == (1.0, 1.0, 1.0)
+
+
+def test_one_crop_corner_leaves_the_box_open_on_the_other_side():
+    from mvbb_ros.pipeline.filtering import crop_points
+
+    points = np.array([[-5.0, 0.0, 0.0], [0.5, 0.5, 0.5], [5.0, 5.0, 5.0]])
+    above = settings_from_mapping({'crop_min': [0, 0, 0]}).filtering
+    below = settings_from_mapping({'crop_max': [1, 1, 1]}).filtering
+    assert above.crop_max == () and below.crop_min == ()
+    np.testing.assert_array_equal(crop_points(points, above.crop_min, above.crop_max), points[1:])
+    np.testing.assert_array_equal(crop_points(points, below.crop_min, below.crop_max), points[:2])
+
+
+def test_a_voxel_size_whose_grid_cannot_be_bounded_is_refused_with_the_range():
+    assert validate_setting('voxel_size', 0.0) is None
+    assert validate_setting('voxel_size', 1e-4) is None
+    reason = validate_setting('voxel_size', 1e-9)
+    assert reason is not None and '0 (off) or at least 0.0001' in reason
 
 
 def test_assignments_parse_like_ros_and_reject_garbage():
