@@ -271,3 +271,20 @@ def test_cli_params_file_ignores_ros_parameters_and_refuses_typos(tmp_path):
     params.write_text('decomposer:\n  ros__parameters:\n    min_pionts: 5\n')
     with pytest.raises(ValueError, match='did you mean min_points'):
         settings_from_mapping(read_params_file(params))
+
+
+@pytest.mark.ros
+def test_an_integer_for_a_number_is_taken_as_a_number_at_start_and_at_runtime():
+    graph = Graph(parameter_overrides=[Parameter('cluster_tolerance', value=0)])
+    try:
+        assert graph.node.settings.view.cluster_tolerance == 0.0
+        assert graph.node.get_parameter('cluster_tolerance').type_ == Parameter.Type.DOUBLE
+        request = SetParameters.Request(
+            parameters=[Parameter('gain_threshold', value=1).to_parameter_msg()]
+        )
+        result = _call(graph, SetParameters, 'set_parameters', request).results[0]
+        assert result.successful, result.reason
+        assert graph.node.settings.decomposition.gain_threshold == 1.0
+        assert graph.node.get_parameter('gain_threshold').type_ == Parameter.Type.DOUBLE
+    finally:
+        graph.close()

@@ -126,6 +126,16 @@ _ARRAY_TYPES = (
 )
 
 
+def _typed(parameter: Parameter) -> Parameter:
+    """Return a parameter of a setting with the setting's own type where ROS inferred another."""
+    spec = SPEC_BY_NAME.get(parameter.name)
+    if spec is not None and spec.kind is list and parameter.type_ in _ARRAY_TYPES:
+        return vector_parameter(parameter.name, parameter.value)
+    if spec is not None and spec.kind is float and parameter.type_ is Parameter.Type.INTEGER:
+        return Parameter(parameter.name, Parameter.Type.DOUBLE, float(parameter.value))
+    return parameter
+
+
 def vector_parameter(name: str, value: Any) -> Parameter:
     """
     Return a vector setting as a DOUBLE_ARRAY parameter when its value is numbers or empty.
@@ -178,7 +188,7 @@ class DecomposerNode(Node):
         # Validation runs before declaration takes effect: rclpy calls this on every declared
         # override, so a bad value in a YAML file raises at start-up with our reason.
         self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_pre_set_parameters_callback(self._typed_vectors)
+        self.add_pre_set_parameters_callback(self._typed_parameters)
         self._declare_parameters()
         self._check_unknown_parameters()
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -233,6 +243,9 @@ class DecomposerNode(Node):
         for spec in SPECS:
             descriptor = parameter_descriptor(spec)
             default = self._settings.value(spec.name)
+            override = self._parameter_overrides.get(spec.name)
+            if override is not None and spec.kind is float:  # `-p tolerance:=0` is an integer
+                self._parameter_overrides[spec.name] = _typed(override)
             if spec.kind is not list:
                 self.declare_parameter(spec.name, default, descriptor)
                 continue
@@ -252,16 +265,9 @@ class DecomposerNode(Node):
         }
         self._settings = PipelineSettings().updated(values)
 
-    def _typed_vectors(self, parameters: list[Parameter]) -> list[Parameter]:
-        """Turn numbers and empty arrays given for a vector into DOUBLE_ARRAY (pre-set)."""
-        return [
-            vector_parameter(parameter.name, parameter.value)
-            if parameter.name in SPEC_BY_NAME
-            and SPEC_BY_NAME[parameter.name].kind is list
-            and parameter.type_ in _ARRAY_TYPES
-            else parameter
-            for parameter in parameters
-        ]
+    def _typed_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
+        """Give each value its setting's type: vectors as DOUBLE_ARRAY, integers as doubles."""
+        return [_typed(parameter) for parameter in parameters]
 
     def _check_unknown_parameters(self) -> None:
         """Refuse parameters given for this node that it does not have (misspelt keys)."""
