@@ -98,12 +98,16 @@ class ViewSettings:
         whole cloud as one object (:func:`~mvbb_ros.geometry.objects.separate_objects`).
     :ivar completion: how each object's hidden side is estimated
         (:func:`~mvbb_ros.geometry.completion.complete_view`).
+    :ivar max_objects: the largest objects of a frame that are decomposed and grasped; the
+        others are left out and the result says so (0: all). With ``max_boxes`` it bounds the
+        boxes, and so the grasps, of a whole frame.
     """
 
     viewpoint: tuple[float, ...] = (0.0, 0.0, 0.0)
     up: tuple[float, ...] | None = None
     cluster_tolerance: float = 0.0
     completion: Completion = 'none'
+    max_objects: int = 0
 
 
 @dataclass(frozen=True)
@@ -324,6 +328,15 @@ SPECS: tuple[SettingSpec, ...] = (
         'own. 0 treats the whole cloud as one object.',
         (0.0, 10.0),
         node_default=0.02,
+    ),
+    SettingSpec(
+        'max_objects',
+        ViewSettings,
+        int,
+        'The largest objects of a cloud that are decomposed and grasped; the rest are left '
+        'out and the diagnostics say so. 0 keeps every object.',
+        (0, 1000),
+        node_default=16,
     ),
     SettingSpec(
         'shape_completion',

@@ -457,8 +457,11 @@ class DecomposerNode(Node):
             note = empty_grasps_note(result, self._settings)
             if note:
                 values['no_grasps_because'] = note
-            if result.notes:
-                values['completion_skipped'] = '; '.join(result.notes)
+            if result.capped:
+                values['capped'] = '; '.join(result.capped)
+            skipped = [note for note in result.notes if note not in result.capped]
+            if skipped:
+                values['completion_skipped'] = '; '.join(skipped)
         if self._last_error is not None:
             level, message = DiagnosticStatus.ERROR, f'processing failed: {self._last_error}'
         elif result is not None and result.warning is not None:
