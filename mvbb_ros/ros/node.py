@@ -48,9 +48,10 @@ from mvbb_ros.pipeline.settings import (
     unknown_setting_reason,
     validate_setting,
 )
-from mvbb_ros.ros.diagnostics import ReceptionLog
+from mvbb_ros.ros.diagnostics import OverloadWatch, ReceptionLog
 from mvbb_ros.ros.input import CloudInput
 from mvbb_ros.ros.messages import cleared_tree, diagnostic_status, output_messages, OUTPUT_TYPES
+from mvbb_ros.ros.worker import FrameWorker
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -221,7 +222,9 @@ class DecomposerNode(Node):
             self._settings.node.input_reliability,
             self._settings.node.input_depth,
         )
-        self._reprocess_trigger = self.create_guard_condition(self._reprocess_last_cloud)
+        # Frames run on their own thread: services and diagnostics answer during a frame.
+        self._worker = FrameWorker(self._run_frame, name='decomposer frames')
+        self._overload = OverloadWatch()
         # The wall clock: diagnostics go on while a bag is paused under use_sim_time.
         self._diagnostics_timer = self.create_timer(
             DIAGNOSTICS_PERIOD_S,
@@ -321,7 +324,7 @@ class DecomposerNode(Node):
             header = self._last_cloud.header if self._last_cloud is not None else Header()
             self._publishers_by_suffix['tree'].publish(cleared_tree(header))
         if self._last_cloud is not None and set(changes) - {'input_reliability', 'input_depth'}:
-            self._reprocess_trigger.trigger()
+            self._worker.again()
 
     @property
     def settings(self) -> PipelineSettings:
@@ -339,12 +342,33 @@ class DecomposerNode(Node):
         self._stats['clouds_received'] += 1
         self._receptions.record()
         self._last_cloud = cloud
-        self._process(cloud, reprocess=False)
+        self._worker.submit(cloud)
 
-    def _reprocess_last_cloud(self) -> None:
-        if self._last_cloud is not None:
+    def _run_frame(self, cloud: PointCloud2 | None) -> None:
+        """Process a new cloud, or (None) the last cloud again; on the worker thread."""
+        if cloud is not None:
+            self._process(cloud, reprocess=False)
+        elif self._last_cloud is not None:
             self._stats['clouds_reprocessed'] += 1
             self._process(self._last_cloud, reprocess=True)
+
+    def diagnostic_counts(self) -> dict[str, int]:
+        """Return the clouds counted so far, as the diagnostics report them."""
+        return {
+            **self._stats,
+            'clouds_skipped_busy': self._worker.skipped,
+            'parameter_changes_merged': self._worker.merged,
+        }
+
+    @property
+    def frames(self) -> FrameWorker:
+        """Return the worker that processes the frames (its skipped and merged counts)."""
+        return self._worker
+
+    def destroy_node(self) -> None:
+        """Finish the frame in progress, then leave the graph."""
+        self._worker.stop()
+        super().destroy_node()
 
     def _process(self, cloud: PointCloud2, *, reprocess: bool) -> None:
         """Run the pipeline on `cloud` and publish; any failure publishes cleared outputs."""
@@ -440,8 +464,11 @@ class DecomposerNode(Node):
 
     def _publish_diagnostics(self) -> None:
         result = self._last_result
-        values: dict[str, object] = dict(self._stats)
+        values: dict[str, object] = dict(self.diagnostic_counts())
         input_values, problems = self._input_values()
+        overload = self._overload.update(self._stats['clouds_received'], self._worker.skipped)
+        if overload is not None:
+            problems.append(overload)
         values.update(input_values)
         if result is not None:
             values.update(
