@@ -288,3 +288,47 @@ def test_an_integer_for_a_number_is_taken_as_a_number_at_start_and_at_runtime():
         assert graph.node.get_parameter('gain_threshold').type_ == Parameter.Type.DOUBLE
     finally:
         graph.close()
+
+
+def test_a_parameter_file_for_another_node_name_is_named(tmp_path):
+    from mvbb_ros.pipeline.settings_text import unmatched_params_files
+
+    files = {}
+    for name, section in (
+        ('typo', 'decomposr'),
+        ('exact', 'decomposer'),
+        ('slash', '/decomposer'),
+        ('all', '/**'),
+        ('star', '/robot/*'),
+    ):
+        files[name] = tmp_path / f'{name}.yaml'
+        files[name].write_text(f'{section}:\n  ros__parameters:\n    gain_threshold: 0.9\n')
+    arguments = ['decomposer', '--ros-args']
+    for path in files.values():
+        arguments += ['--params-file', str(path)]
+    lines = unmatched_params_files(arguments, '/decomposer')
+    assert len(lines) == 2
+    assert str(files['typo']) in lines[0] and 'decomposr' in lines[0]
+    assert str(files['star']) in lines[1]  # /robot/* is for nodes in the robot namespace
+    in_namespace = unmatched_params_files(arguments, '/robot/decomposer')
+    assert [line.split()[2] for line in in_namespace] == [
+        str(files[name]) for name in ('typo', 'exact', 'slash')
+    ]
+
+
+def test_a_parameter_file_that_is_not_yaml_stops_the_node_with_one_line(tmp_path):
+    params = tmp_path / 'broken.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    gain_threshold: [0.9\n')
+    script = Path(sys.executable).parent / 'decomposer'
+    if not script.exists():
+        pytest.skip(f'{script} is not installed (run make test, which installs the package)')
+    result = subprocess.run(
+        [str(script), '--ros-args', '--params-file', str(params)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 2, result.stderr
+    assert 'decomposer: cannot start' in result.stderr and 'broken.yaml' in result.stderr
+    assert 'Traceback' not in result.stdout + result.stderr
