@@ -12,6 +12,12 @@ through other modules of the package (:func:`dependency_digest`). So an edit of 
 recompiles the kernels of ``hull.py``, ``search.py``, ``fit.py`` and of the modules that import
 them, and nothing else.
 
+A cache that cannot be used never stops a start: a torn or unreadable cache entry (a power cut
+right after a compile leaves one) is discarded and the kernel compiled again, and a cache folder
+that cannot be written (a read-only install and a read-only home) means the kernels are compiled
+in memory for the run; each says so in one :class:`KernelCacheWarning`. A read-only install that
+ships a cache in its ``__pycache__`` loads it from there wherever it is valid.
+
 The packages that hold kernels (``mvbb_ros/geometry/__init__.py`` and
 ``mvbb_ros/pipeline/__init__.py``) import this module before any of their modules, so the
 wrapper is in place before any kernel of the package is defined (numba picks a kernel's locator
@@ -20,14 +26,18 @@ when it is decorated); :mod:`mvbb_ros.kernels` lists and warms the kernels.
 
 from __future__ import annotations
 
+import errno
 import functools
 import hashlib
+import os
 from pathlib import Path
 import re
+import sys
 from types import FunctionType
 from typing import Any
+import warnings
 
-from numba.core import caching
+from numba.core import caching, config
 
 #: The package's folder: kernels defined under it get :class:`PackageCacheLocator`.
 PACKAGE_ROOT = Path(__file__).resolve().parent
@@ -91,6 +101,32 @@ def dependency_digest(path: Path) -> str:
     return digest.hexdigest()
 
 
+class KernelCacheWarning(RuntimeWarning):
+    """A kernel cache entry could not be used or written: the kernel was compiled instead."""
+
+
+#: What has been warned about in this process (one warning per folder and kind of trouble).
+_WARNED: set[tuple[str, str]] = set()
+
+
+def _warn_once(kind: str, folder: str, message: str) -> None:
+    """Warn with a :class:`KernelCacheWarning` once per process for `kind` and `folder`."""
+    if (kind, folder) not in _WARNED:
+        _WARNED.add((kind, folder))
+        warnings.warn(message, KernelCacheWarning, stacklevel=3)
+
+
+def _ships_cache(py_func: FunctionType, py_file: str) -> bool:
+    """Whether the module's own ``__pycache__`` holds an index of `py_func`'s compiled code."""
+    folder = Path(py_file).parent / '__pycache__'
+    qualname = py_func.__qualname__.replace('<', '').replace('>', '')
+    line = py_func.__code__.co_firstlineno
+    pattern = (
+        f'{Path(py_file).stem}.{qualname}-{line}.py{sys.version_info[0]}{sys.version_info[1]}*.nbi'
+    )
+    return folder.is_dir() and any(folder.glob(pattern))
+
+
 class PackageCacheLocator(caching._CacheLocator):
     """
     numba's own cache locator for a kernel of this package, with a stamp over its callees' files.
@@ -104,13 +140,19 @@ class PackageCacheLocator(caching._CacheLocator):
     #: Marks the wrapper (a module run twice, as ``__main__`` too, must not install two).
     wraps_numba_locator = True
 
-    def __init__(self, inner: Any, py_file: str) -> None:
+    def __init__(self, inner: Any, py_file: str, *, read_only: bool = False) -> None:
         self._inner = inner
         # numba's warnings about uncachable functions name the file through this attribute.
         self._py_file = py_file
+        #: Load from the folder but never write there (a read-only install's shipped cache).
+        self.read_only = read_only
 
     def ensure_cache_path(self) -> None:
         """Make sure the cache folder exists and is writable (numba's check)."""
+        if self.read_only:
+            raise OSError(
+                errno.EROFS, 'the kernel cache folder is read-only', self.get_cache_path()
+            )
         self._inner.ensure_cache_path()
 
     def get_cache_path(self) -> str:
@@ -132,14 +174,93 @@ class PackageCacheLocator(caching._CacheLocator):
             Path(py_file).resolve().relative_to(PACKAGE_ROOT)
         except (OSError, ValueError):
             return None
-        others: list[Any] = caching.CacheImpl._locator_classes
+        others: list[Any] = [
+            other
+            for other in caching.CacheImpl._locator_classes
+            if not getattr(other, 'wraps_numba_locator', False)
+        ]
+        # numba's locator for the module's own __pycache__ (named with or without an underscore).
+        in_tree: Any = next(
+            (other for other in others if other.__name__.endswith('InTreeCacheLocator')), None
+        )
+        shipped = (
+            in_tree is not None
+            and not getattr(config, 'CACHE_DIR', '')
+            and not os.access(Path(py_file).parent, os.W_OK)
+            and _ships_cache(py_func, py_file)
+        )
+        if shipped:
+            return cls(in_tree(py_func, py_file), py_file, read_only=True)
         for other in others:
-            if getattr(other, 'wraps_numba_locator', False):
-                continue
             inner = other.from_function(py_func, py_file)
             if inner is not None:
                 return cls(inner, py_file)
+        if in_tree is not None:  # nowhere writable: compile in memory, never fail the import
+            return cls(in_tree(py_func, py_file), py_file, read_only=True)
         return None
+
+
+def _probe() -> None:
+    """Stand-in function for asking where a module's kernels are cached."""
+
+
+def cache_folder(module_file: Path) -> Path | None:
+    """Return the folder that holds (or would hold) the kernel caches of a package module."""
+    locator = PackageCacheLocator.from_function(_probe, str(module_file))  # type: ignore[arg-type]
+    return None if locator is None else Path(locator.get_cache_path())
+
+
+def _is_ours(cache: Any) -> bool:
+    """Whether a numba cache belongs to a kernel of this package."""
+    return isinstance(getattr(cache._impl, 'locator', None), PackageCacheLocator)
+
+
+def _discard(cache: Any) -> None:
+    """Remove a cache's index file, so the next save starts a fresh one (best effort)."""
+    try:
+        os.unlink(cache._cache_file._index_path)
+    except OSError:
+        pass
+
+
+def _install_healing() -> None:
+    """Make loading and saving this package's kernel caches survive bad or read-only files."""
+    load, save = caching.Cache.load_overload, caching.Cache.save_overload
+    if getattr(load, 'heals_package_caches', False):
+        return
+
+    def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
+        if not _is_ours(self):
+            return load(self, sig, target_context)
+        try:
+            return load(self, sig, target_context)
+        except Exception as error:  # a cache is only a shortcut: whatever broke it, compile
+            _discard(self)
+            _warn_once(
+                'unreadable',
+                str(self._cache_path),
+                f'kernel cache in {self._cache_path} could not be read ({type(error).__name__}: '
+                f'{error}); discarded, compiling again',
+            )
+            return None
+
+    def save_overload(self: Any, sig: Any, data: Any) -> None:
+        if not _is_ours(self):
+            save(self, sig, data)
+            return
+        try:
+            save(self, sig, data)
+        except OSError as error:
+            _warn_once(
+                'unwritable',
+                str(self._cache_path),
+                f'kernel cache in {self._cache_path} cannot be written ({error.strerror}); '
+                'kernels are compiled in memory for this run',
+            )
+
+    load_overload.heals_package_caches = True  # type: ignore[attr-defined]
+    caching.Cache.load_overload = load_overload  # type: ignore[method-assign]
+    caching.Cache.save_overload = save_overload  # type: ignore[method-assign]
 
 
 def _install_locator() -> None:
@@ -150,3 +271,4 @@ def _install_locator() -> None:
 
 
 _install_locator()
+_install_healing()

@@ -29,6 +29,7 @@ import time
 from types import ModuleType
 
 from mvbb_ros.compile_time import compile_seconds
+from mvbb_ros.kernel_cache import cache_folder, PACKAGE_ROOT
 from numba.core import caching
 from numba.core.registry import CPUDispatcher
 
@@ -126,8 +127,36 @@ def warm_up_logged(log: Callable[[str], object]) -> WarmUp:
     return report
 
 
+def cold_modules() -> list[str]:
+    """
+    Return the kernel modules that have no cached kernel yet (a first start after an install).
+
+    Looks only at the cache folders, importing no kernel module, so that a program can say that
+    it is about to compile before the imports that compile.
+    """
+    cold = []
+    for name in KERNEL_MODULES:
+        path = PACKAGE_ROOT.joinpath(*name.split('.')[1:]).with_suffix('.py')
+        folder = cache_folder(path)
+        if folder is None or not any(folder.glob(f'{path.stem}.*.nbi')):
+            cold.append(name)
+    return cold
+
+
+def announce_cold_start(log: Callable[[str], object]) -> bool:
+    """Say through `log`, before anything compiles, that the kernels are about to be compiled."""
+    if not cold_modules():
+        return False
+    log(
+        'compiling geometry kernels before the first cloud (first start after an install; '
+        'about a minute on 2 quiet cores, several on a loaded machine)'
+    )
+    return True
+
+
 def main() -> int:
     """Warm the cache (``python -m mvbb_ros.kernels``); print what it took."""
+    announce_cold_start(lambda line: print(f'mvbb_ros kernels: {line}', flush=True))
     report = warm_up()
     if report.compiled:
         what = f'compiled {len(report.compiled)} kernels in {report.compile_seconds:.1f} s'

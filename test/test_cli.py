@@ -54,3 +54,20 @@ def test_version_is_the_package_version():
     result = subprocess.run([str(MVBB), '--version'], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ['mvbb', declared]
+
+
+def test_an_output_that_cannot_be_written_is_one_line(cloud, tmp_path):
+    """Not a folder (as a read-only or full disk): one line naming the path, nothing written."""
+    blocker = tmp_path / 'not_a_folder'
+    blocker.write_text('a file where the output folder should be')
+    result = subprocess.run(
+        [str(MVBB), 'decompose', str(cloud), '--json', str(blocker / 'result.json')],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 1
+    assert 'Traceback' not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if 'error' in line]
+    assert len(errors) == 1 and 'not_a_folder' in errors[0], result.stderr
+    assert blocker.read_text() == 'a file where the output folder should be'

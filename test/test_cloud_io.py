@@ -171,7 +171,7 @@ def test_pickled_npy_files_are_refused(tmp_path):
 @pytest.mark.parametrize('ext', ['ply', 'pcd'])
 def test_malformed_ply_and_pcd_files_are_refused(tmp_path, ext):
     (tmp_path / f'junk.{ext}').write_text('this is not a point cloud\n')
-    with pytest.raises(ValueError, match='no points read'):
+    with pytest.raises(ValueError, match='no points read|not a PLY file'):
         load_cloud(tmp_path / f'junk.{ext}')
 
 
@@ -182,3 +182,24 @@ def test_save_refuses_bad_points_and_writes_nothing(tmp_path, points):
     with pytest.raises(ValueError):
         save_cloud(tmp_path / 'cloud.ply', points)
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize('encoding', ['binary_little_endian', 'ascii'])
+def test_a_ply_header_promising_more_than_the_file_holds_is_refused_before_reading(
+    tmp_path, encoding
+):
+    path = tmp_path / 'liar.ply'
+    save_cloud(path, sample_points(200, np.float32))
+    header, body = path.read_bytes().split(b'end_header\n', 1)
+    header = header.replace(b'element vertex 200', b'element vertex 1000000000')
+    header = header.replace(b'binary_little_endian', encoding.encode())
+    path.write_bytes(header + b'end_header\n' + body)
+    with pytest.raises(ValueError, match='promises at least'):
+        load_cloud(path)
+
+
+def test_an_honest_ply_header_is_read(tmp_path):
+    path = tmp_path / 'honest.ply'
+    points = sample_points(200, np.float32)
+    save_cloud(path, points)
+    np.testing.assert_array_equal(load_cloud(path), points.astype(np.float64))

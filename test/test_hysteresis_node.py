@@ -25,8 +25,13 @@ class _Pose:
 
 
 def _top(graph: Graph, count: int) -> _Pose:
-    """Spin until the node published `count` grasp lists; return the last one's top grasp."""
-    assert graph.spin_until(lambda: len(graph.candidates) >= count, timeout_s=30.0)
+    """Spin until the node published `count` grasp lists and is idle; return the last top grasp."""
+    # Changes made one parameter at a time may give one re-processing or two (merged while a
+    # frame runs): wait until the node has nothing left to do, then for its last message.
+    assert graph.spin_until(
+        lambda: len(graph.candidates) >= count and graph.node.frames.idle(), timeout_s=30.0
+    )
+    graph.spin_until(lambda: False, timeout_s=0.5)
     fields = read_fields(graph.candidates[-1])
     assert len(fields['x']) > 0, 'the node published grasps'
     return _Pose(fields, 0)

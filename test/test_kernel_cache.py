@@ -19,6 +19,8 @@ import textwrap
 
 from conftest import REPO_ROOT
 from mvbb_ros import kernel_cache, kernels
+import pytest
+from test_kernels import read_only_command
 
 PACKAGE = REPO_ROOT / 'mvbb_ros'
 
@@ -196,3 +198,82 @@ def test_cached_kernels_answer_as_freshly_compiled_ones(tmp_path):
         assert recompiled['misses'] > 0 and loaded['misses'] == 0, name
         assert recompiled['answers'] == compiled['answers'], f'{name} recompiled'
         assert loaded['answers'] == compiled['answers'], f'{name} loaded from the cache'
+
+
+KERNEL = """
+from mvbb_ros import kernel_cache  # noqa: F401 (the package's locator before the kernel)
+import numba as nb
+
+
+@nb.njit(cache=True)
+def kernel(x):
+    return x * 2
+"""
+
+KERNEL_PROBE = """
+from mvbb_ros.geometry import _probe_kernel as probe
+result = probe.kernel(21)
+stats = probe.kernel.stats
+print(probe.__file__, result, sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
+"""
+
+
+def _probe_package(tmp_path: Path) -> Path:
+    """Copy the package (no caches) with one small cached kernel; return the copy's folder."""
+    root = tmp_path / 'install'
+    shutil.copytree(PACKAGE, root / 'mvbb_ros', ignore=shutil.ignore_patterns('__pycache__'))
+    (root / 'mvbb_ros' / 'geometry' / '_probe_kernel.py').write_text(textwrap.dedent(KERNEL))
+    for home in (tmp_path / 'home', root / 'home'):  # root/home is read-only with the install
+        home.mkdir()
+    return root
+
+
+def _run_probe(
+    root: Path, home: Path, read_only: bool = False
+) -> tuple[tuple[int, int, int], str]:
+    """Run the probe kernel from `root` with `home` as HOME; `read_only`: `root` read-only."""
+    env = {key: value for key, value in os.environ.items() if key != 'NUMBA_CACHE_DIR'}
+    env.update(PYTHONPATH=str(root), HOME=str(home), XDG_CACHE_HOME=str(home / '.cache'))
+    prefix = read_only_command(root) if read_only else []
+    completed = subprocess.run(
+        [*prefix, sys.executable, '-c', KERNEL_PROBE],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert completed.returncode == 0, completed.stderr
+    where, value, hits, misses = completed.stdout.split()
+    assert Path(where).is_relative_to(root)
+    return (int(value), int(hits), int(misses)), completed.stderr
+
+
+@pytest.mark.parametrize('suffix', ['nbi', 'nbc'])
+def test_a_torn_cache_file_is_discarded_and_the_kernel_compiled_again(tmp_path, suffix):
+    root = _probe_package(tmp_path)
+    home = tmp_path / 'home'
+    assert _run_probe(root, home) == ((42, 0, 1), '')
+    assert _run_probe(root, home) == ((42, 1, 0), '')
+    (torn,) = (root / 'mvbb_ros' / 'geometry' / '__pycache__').glob(f'_probe_kernel.*.{suffix}')
+    torn.write_bytes(torn.read_bytes()[:10])  # what a power cut after the compile leaves
+    counts, stderr = _run_probe(root, home)
+    assert counts == (42, 0, 1)
+    assert 'KernelCacheWarning' in stderr and 'could not be read' in stderr
+    assert stderr.count('KernelCacheWarning') == 1
+    assert _run_probe(root, home) == ((42, 1, 0), '')  # healed: the new entry loads
+
+
+def test_a_read_only_install_uses_its_shipped_cache_and_compiles_the_rest_in_memory(tmp_path):
+    root = _probe_package(tmp_path)
+    writable_home, read_only_home = tmp_path / 'home', root / 'home'
+    assert _run_probe(root, writable_home) == ((42, 0, 1), '')  # the build ships a warm cache
+    assert _run_probe(root, read_only_home, read_only=True) == ((42, 1, 0), '')
+    assert _run_probe(root, writable_home, read_only=True) == ((42, 1, 0), '')  # not compiled
+    assert not list(writable_home.rglob('*.nbi'))
+    for path in (root / 'mvbb_ros' / 'geometry' / '__pycache__').glob('_probe_kernel.*'):
+        path.unlink()  # shipped without a cache: nowhere to write one
+    counts, stderr = _run_probe(root, read_only_home, read_only=True)
+    assert counts == (42, 0, 1)
+    assert 'KernelCacheWarning' in stderr and 'cannot be written' in stderr
+    assert not list(read_only_home.rglob('*.nbi'))

@@ -29,7 +29,9 @@ CHILD = """
 import json, os
 import mvbb_ros
 from mvbb_ros.kernels import warm_up_logged
+from mvbb_ros.kernels import announce_cold_start
 lines = []
+announce_cold_start(lines.append)
 report = warm_up_logged(lines.append)
 folder = os.path.dirname(mvbb_ros.__file__)
 print(json.dumps({'package': folder, 'writable': os.access(folder, os.W_OK), 'lines': lines,
@@ -83,9 +85,10 @@ def test_a_read_only_package_caches_in_the_users_cache_directory(tmp_path):
     first = run()
     assert Path(first['package']) == install / 'mvbb_ros' and not first['writable']
     assert first['compiled'] > 0
-    assert len(first['lines']) == 1
+    assert len(first['lines']) == 2
+    assert first['lines'][0].startswith('compiling geometry kernels before the first cloud')
     assert re.fullmatch(
-        r'compiling geometry kernels, first run only \(\d+\.\d s\)', first['lines'][0]
+        r'compiling geometry kernels, first run only \(\d+\.\d s\)', first['lines'][1]
     )
     cache = home / '.cache' / 'numba'
     index = {path.name.split('.')[0] for path in cache.rglob('*.nbi')}
@@ -154,3 +157,34 @@ def test_the_warm_up_compiles_what_the_pipeline_runs():
         check=True,
     )
     assert json.loads(completed.stdout.strip().splitlines()[-1]) == {}
+
+
+COLD = """
+import json
+from mvbb_ros import kernels
+lines = []
+said = kernels.announce_cold_start(lines.append)
+print(json.dumps({'cold': kernels.cold_modules(), 'said': said, 'lines': lines}))
+"""
+
+
+def test_a_first_start_is_announced_before_anything_compiles(tmp_path):
+    install = tmp_path / 'install'
+    shutil.copytree(
+        REPO_ROOT / 'mvbb_ros', install / 'mvbb_ros', ignore=shutil.ignore_patterns('__pycache__')
+    )
+    environment = {key: value for key, value in os.environ.items() if key != 'NUMBA_CACHE_DIR'}
+    environment.update(HOME=str(tmp_path), PYTHONPATH=str(install))
+    result = subprocess.run(
+        [sys.executable, '-c', COLD],
+        cwd=tmp_path,
+        env=environment,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
+    answer = json.loads(result.stdout)
+    assert answer['cold'] == list(kernels.KERNEL_MODULES) and answer['said']
+    assert len(answer['lines']) == 1 and 'first start' in answer['lines'][0]
+    assert not kernels.cold_modules(), 'the work tree is warm (set-up warmed it)'

@@ -18,6 +18,7 @@ from mvbb_ros.pipeline.settings_text import parse_assignments, read_params_file
 from mvbb_ros.ros.encode import create_cloud_xyz
 import mvbb_ros.ros.node
 from mvbb_ros.ros.node import DecomposerNode, UnknownParameterError
+import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType
@@ -66,6 +67,24 @@ def test_crop_corners_must_be_ordered():
         settings_from_mapping({'crop_min': [0, 0, 1], 'crop_max': [1, 1, 0]})
     settings = settings_from_mapping({'crop_min': [0, 0, 0], 'crop_max': [1, 1, 1]})
     assert settings.filtering.crop_max == (1.0, 1.0, 1.0)
+
+
+def test_one_crop_corner_leaves_the_box_open_on_the_other_side():
+    from mvbb_ros.pipeline.filtering import crop_points
+
+    points = np.array([[-5.0, 0.0, 0.0], [0.5, 0.5, 0.5], [5.0, 5.0, 5.0]])
+    above = settings_from_mapping({'crop_min': [0, 0, 0]}).filtering
+    below = settings_from_mapping({'crop_max': [1, 1, 1]}).filtering
+    assert above.crop_max == () and below.crop_min == ()
+    np.testing.assert_array_equal(crop_points(points, above.crop_min, above.crop_max), points[1:])
+    np.testing.assert_array_equal(crop_points(points, below.crop_min, below.crop_max), points[:2])
+
+
+def test_a_voxel_size_whose_grid_cannot_be_bounded_is_refused_with_the_range():
+    assert validate_setting('voxel_size', 0.0) is None
+    assert validate_setting('voxel_size', 1e-4) is None
+    reason = validate_setting('voxel_size', 1e-9)
+    assert reason is not None and '0 (off) or at least 0.0001' in reason
 
 
 def test_assignments_parse_like_ros_and_reject_garbage():
@@ -252,3 +271,64 @@ def test_cli_params_file_ignores_ros_parameters_and_refuses_typos(tmp_path):
     params.write_text('decomposer:\n  ros__parameters:\n    min_pionts: 5\n')
     with pytest.raises(ValueError, match='did you mean min_points'):
         settings_from_mapping(read_params_file(params))
+
+
+@pytest.mark.ros
+def test_an_integer_for_a_number_is_taken_as_a_number_at_start_and_at_runtime():
+    graph = Graph(parameter_overrides=[Parameter('cluster_tolerance', value=0)])
+    try:
+        assert graph.node.settings.view.cluster_tolerance == 0.0
+        assert graph.node.get_parameter('cluster_tolerance').type_ == Parameter.Type.DOUBLE
+        request = SetParameters.Request(
+            parameters=[Parameter('gain_threshold', value=1).to_parameter_msg()]
+        )
+        result = _call(graph, SetParameters, 'set_parameters', request).results[0]
+        assert result.successful, result.reason
+        assert graph.node.settings.decomposition.gain_threshold == 1.0
+        assert graph.node.get_parameter('gain_threshold').type_ == Parameter.Type.DOUBLE
+    finally:
+        graph.close()
+
+
+def test_a_parameter_file_for_another_node_name_is_named(tmp_path):
+    from mvbb_ros.pipeline.settings_text import unmatched_params_files
+
+    files = {}
+    for name, section in (
+        ('typo', 'decomposr'),
+        ('exact', 'decomposer'),
+        ('slash', '/decomposer'),
+        ('all', '/**'),
+        ('star', '/robot/*'),
+    ):
+        files[name] = tmp_path / f'{name}.yaml'
+        files[name].write_text(f'{section}:\n  ros__parameters:\n    gain_threshold: 0.9\n')
+    arguments = ['decomposer', '--ros-args']
+    for path in files.values():
+        arguments += ['--params-file', str(path)]
+    lines = unmatched_params_files(arguments, '/decomposer')
+    assert len(lines) == 2
+    assert str(files['typo']) in lines[0] and 'decomposr' in lines[0]
+    assert str(files['star']) in lines[1]  # /robot/* is for nodes in the robot namespace
+    in_namespace = unmatched_params_files(arguments, '/robot/decomposer')
+    assert [line.split()[2] for line in in_namespace] == [
+        str(files[name]) for name in ('typo', 'exact', 'slash')
+    ]
+
+
+def test_a_parameter_file_that_is_not_yaml_stops_the_node_with_one_line(tmp_path):
+    params = tmp_path / 'broken.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    gain_threshold: [0.9\n')
+    script = Path(sys.executable).parent / 'decomposer'
+    if not script.exists():
+        pytest.skip(f'{script} is not installed (run make test, which installs the package)')
+    result = subprocess.run(
+        [str(script), '--ros-args', '--params-file', str(params)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 2, result.stderr
+    assert 'decomposer: cannot start' in result.stderr and 'broken.yaml' in result.stderr
+    assert 'Traceback' not in result.stdout + result.stderr

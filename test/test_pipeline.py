@@ -196,3 +196,56 @@ def test_an_absurd_float32_cloud_is_refused_with_its_finite_span():
     reason = implausible_extent(points)
     assert reason is not None and '6.8e+38 x 0.2 x 0.2 m' in reason, reason
     assert implausible_extent(points[:, [1, 2, 1]] * np.float32(10.0)) is None
+
+
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+@pytest.mark.parametrize(('voxel_size', 'outlier_neighbors'), [(0.0, 0), (0.0, 20), (0.005, 0)])
+def test_any_filter_switched_off_still_processes_read_only_clouds(
+    dtype, voxel_size, outlier_neighbors
+):
+    """Both filters off hand the caller's (read-only) array straight to the compiled stages."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(4)
+    box = rng.uniform((-0.03, -0.02, 0.5), (0.03, 0.02, 0.56), size=(2000, 3)).astype(dtype)
+    box.setflags(write=False)
+    before = box.copy()
+    node = PipelineSettings()
+    settings = replace(
+        node,
+        filtering=replace(
+            node.filtering, voxel_size=voxel_size, outlier_neighbors=outlier_neighbors
+        ),
+    )
+    result = process_points(box, settings)
+    assert result.warning is None
+    assert result.objects and result.objects[0].decomposition.leaves
+    np.testing.assert_array_equal(box, before)
+
+
+def test_max_objects_keeps_the_largest_objects_of_a_frame_and_says_what_it_left_out():
+    from dataclasses import replace
+
+    rng = np.random.default_rng(5)
+    sizes = np.arange(40, 40 + 12 * 15, 15)  # twelve blobs, each larger than the last
+    centres = np.column_stack([np.arange(12) * 0.2, np.zeros(12), np.full(12, 0.8)])
+    blobs = [c + rng.normal(scale=0.01, size=(n, 3)) for c, n in zip(centres, sizes, strict=True)]
+    cloud = np.concatenate(blobs)
+    node = PipelineSettings()
+    settings = replace(
+        node,
+        view=replace(node.view, max_objects=5, completion='none'),
+        filtering=replace(node.filtering, voxel_size=0.0, outlier_neighbors=0),
+    )
+    capped = process_points(cloud, settings)
+    everything = process_points(
+        cloud, replace(settings, view=replace(settings.view, max_objects=0))
+    )
+    assert len(everything.objects) == 12 and not everything.capped
+    counts = [len(item.point_indices) for item in everything.objects]
+    assert counts == sorted(counts, reverse=True)
+    assert [len(item.point_indices) for item in capped.objects] == counts[:5]
+    assert capped.capped == [
+        f'max_objects: kept the 5 largest of 12 objects ({sum(counts[5:])} points left out)'
+    ]
+    assert capped.capped[0] in capped.notes

@@ -41,6 +41,55 @@ def _as_xyz(array: np.ndarray, source: str) -> np.ndarray:
     return array.reshape(-1, 3)
 
 
+#: Bytes of each PLY scalar type (both the old and the sized names).
+_PLY_SIZES = {
+    **dict.fromkeys(('char', 'uchar', 'int8', 'uint8'), 1),
+    **dict.fromkeys(('short', 'ushort', 'int16', 'uint16'), 2),
+    **dict.fromkeys(('int', 'uint', 'float', 'int32', 'uint32', 'float32'), 4),
+    **dict.fromkeys(('double', 'float64'), 8),
+}
+
+#: How far into a PLY file its header may reach.
+_PLY_HEADER_LIMIT = 1 << 16
+
+
+def check_ply_header(file: Path) -> None:
+    """
+    Refuse a PLY file whose header promises more data than the file holds.
+
+    A reader trusts the element counts and allocates for them before it reads: a 36 KB file
+    claiming 10^9 vertices would take gigabytes. Every element row needs at least its fixed-size
+    properties (binary; a list property at least its count) or two bytes a property (ASCII).
+
+    :raises ValueError: a header without ``end_header`` or counts the file cannot hold.
+    """
+    with file.open('rb') as stream:
+        head = stream.read(_PLY_HEADER_LIMIT)
+    end = head.find(b'end_header')
+    if not head.startswith(b'ply') or end < 0:
+        raise ValueError(f'{file}: not a PLY file (no ply ... end_header header)')
+    body = file.stat().st_size - (head.find(b'\n', end) + 1)
+    binary = b'binary' in head[:end]
+    needed = 0
+    count = 0
+    row = 0
+    for line in head[:end].decode('ascii', 'replace').splitlines():
+        words = line.split()
+        if words[:1] == ['element'] and len(words) == 3 and words[2].isdigit():
+            needed += count * row
+            count, row = int(words[2]), 0
+        elif words[:2] == ['property', 'list'] and len(words) == 5:
+            row += _PLY_SIZES.get(words[2], 1) if binary else 2
+        elif words[:1] == ['property'] and len(words) == 3:
+            row += _PLY_SIZES.get(words[1], 1) if binary else 2
+    needed += count * row
+    if needed > body:
+        raise ValueError(
+            f'{file}: the PLY header promises at least {needed} bytes of data, the file holds '
+            f'{body} (truncated, or a corrupt element count)'
+        )
+
+
 def load_cloud(path: str | os.PathLike[str]) -> FloatArray:
     """
     Read the points of a .npy, .ply or .pcd file, without the non-finite ones.
@@ -70,6 +119,8 @@ def load_cloud(path: str | os.PathLike[str]) -> FloatArray:
             raise ValueError(f'{file}: not a plain NumPy array file ({error})') from error
         points = _as_xyz(np.asarray(array), str(file))
     else:
+        if ext == '.ply':
+            check_ply_header(file)
         cloud = o3d.t.io.read_point_cloud(str(file))
         if 'positions' not in cloud.point or len(cloud.point.positions) == 0:
             raise ValueError(f'{file}: no points read (empty, malformed or not a {ext} file)')

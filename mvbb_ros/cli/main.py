@@ -318,8 +318,9 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
 
 def warm_kernels() -> None:
     """Warm the compiled kernels before the first cloud; one line on stderr when compiling."""
-    from mvbb_ros.kernels import warm_up_logged
+    from mvbb_ros.kernels import announce_cold_start, warm_up_logged
 
+    announce_cold_start(lambda line: print(line, file=sys.stderr, flush=True))
     warm_up_logged(lambda line: print(line, file=sys.stderr, flush=True))
 
 
@@ -637,6 +638,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         # What is still buffered would fail again at exit, so stdout goes to /dev/null.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
+    except OSError as error:  # a read-only or full disk, a folder not allowed: one line
+        where = f' {error.filename}' if error.filename else ''
+        print(f'mvbb {args.command}: error:{where}: {error.strerror or error}', file=sys.stderr)
+        return EXIT_FAILURE
 
 
 if __name__ == '__main__':

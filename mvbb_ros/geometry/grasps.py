@@ -17,12 +17,13 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, cross, FloatArray, read_only
+from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
 from mvbb_ros.geometry import box as box_geometry
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition import Decomposition
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 #: Face order (+a, -a, +b, -b, +c, -c) of :attr:`Grasp.face`, from :mod:`mvbb_ros.geometry.box`.
@@ -273,6 +274,23 @@ def boxes_intersect(
     return ~np.any(separated, axis=-1)
 
 
+#: Box pairs tested for occlusion in one vectorised call: bounds the work arrays
+#: (6 faces x pairs x 15 axes x 3) to a few megabytes whatever the number of boxes.
+OCCLUSION_CHUNK = 2048
+
+
+def _near_pairs(
+    centers: FloatArray, radius: FloatArray, reach: float
+) -> tuple[IndexArray, IndexArray]:
+    """Return the ordered pairs (owner, other) of boxes whose spheres come within `reach`."""
+    near = cKDTree(centers).query_ball_point(centers, radius + radius.max() + reach)
+    counts = np.array([len(row) for row in near], dtype=np.intp)
+    owner = np.repeat(np.arange(len(centers), dtype=np.intp), counts)
+    other = np.concatenate([np.asarray(row, dtype=np.intp) for row in near])
+    distinct = owner != other
+    return owner[distinct], other[distinct]
+
+
 def _occluded_faces(
     centers: FloatArray,
     rotations: FloatArray,
@@ -280,45 +298,66 @@ def _occluded_faces(
     contact_tolerance: float | None,
     contact_fraction: float,
 ) -> BoolArray:
-    """Return (B, 6) whether each face is occluded by another box (``docs/grasp_rules.md``)."""
+    """
+    Return (B, 6) whether each face is occluded by another box (``docs/grasp_rules.md``).
+
+    Only pairs of boxes close enough to touch are tested, in chunks of
+    :data:`OCCLUSION_CHUNK`, so memory grows with the touching pairs, not with B x B.
+    """
     count = len(centers)
     occluded = np.zeros((count, len(FACE_NAMES)), dtype=bool)
     if count < 2:
         return occluded
     scale = float(np.max(extents)) if extents.size else 0.0
     floor = 1e-9 * scale + 8.0 * np.finfo(float).eps * float(np.max(np.abs(centers)))
-    if contact_tolerance is None:
-        sizes = box_sizes(extents)
-        tolerance = contact_fraction * np.minimum(sizes[:, None], sizes[None, :])
-    else:
-        tolerance = np.full((count, count), float(contact_tolerance))
-    tolerance = tolerance + floor  # (B_face_owner, B_other)
-    depth = tolerance + floor  # the slab reaches `floor` behind the face plane, for rounding
+    sizes = box_sizes(extents)
+
+    def pair_tolerance(owner: IndexArray, other: IndexArray) -> FloatArray:
+        if contact_tolerance is None:
+            tolerance = contact_fraction * np.minimum(sizes[owner], sizes[other])
+        else:
+            tolerance = np.full(len(owner), float(contact_tolerance))
+        return tolerance + floor
+
+    # Only pairs whose bounding spheres, the owner's grown by the slab's reach, meet can touch.
+    radius = 0.5 * np.linalg.norm(extents, axis=1)
+    largest = contact_fraction * float(sizes.max()) if contact_tolerance is None else 0.0
+    owner_index, other_index = _near_pairs(
+        centers, radius, max(largest, float(contact_tolerance or 0.0)) + 3.0 * floor
+    )
+    reach = pair_tolerance(owner_index, other_index) + 2.0 * floor
+    distance = np.linalg.norm(centers[other_index] - centers[owner_index], axis=1)
+    close = distance <= (radius[owner_index] + radius[other_index] + reach) * (1.0 + 1e-9)
+    owner_index, other_index = owner_index[close], other_index[close]
 
     half = extents / 2.0
-    # The six faces in one separating-axis call (leading axis: the face), then (B, B) each.
     faces = len(FACE_NAMES)
     axis_of = np.arange(faces) // 2
     signs = np.where(np.arange(faces) % 2 == 1, -1.0, 1.0)
     normals = signs[:, None, None] * np.moveaxis(rotations[:, :, axis_of], -1, 0)  # (6, B, 3)
     face_centers = centers[None, :, :] + normals * half[:, axis_of].T[:, :, None]
-    # Slab per (face, owner, other): inset by tol in-plane, from the face plane to tol outside.
-    slab_half = np.broadcast_to(
-        np.maximum(half[:, None, :] - tolerance[:, :, None], 0.0), (faces, count, count, 3)
-    ).copy()
-    slab_half[np.arange(faces), :, :, axis_of] = depth / 2.0
-    offsets = (tolerance - depth / 2.0)[None, :, :, None]
-    slab_centers = face_centers[:, :, None, :] + normals[:, :, None, :] * offsets
-    hits = boxes_intersect(
-        slab_centers,
-        rotations[None, :, None, :, :],
-        slab_half,
-        centers[None, None, :, :],
-        rotations[None, None, :, :, :],
-        half[None, None, :, :],
-    )  # (6, B, B)
-    hits[:, np.arange(count), np.arange(count)] = False
-    occluded[:, :] = hits.any(axis=2).T
+    for start in range(0, len(owner_index), OCCLUSION_CHUNK):
+        owner = owner_index[start : start + OCCLUSION_CHUNK]
+        other = other_index[start : start + OCCLUSION_CHUNK]
+        tolerance = pair_tolerance(owner, other)  # (P,)
+        depth = tolerance + floor  # the slab reaches `floor` behind the face plane
+        # Slab per (face, pair): inset by tol in-plane, from the face plane to tol outside.
+        slab_half = np.broadcast_to(
+            np.maximum(half[owner] - tolerance[:, None], 0.0), (faces, len(owner), 3)
+        ).copy()
+        slab_half[np.arange(faces), :, axis_of] = depth / 2.0
+        offsets = (tolerance - depth / 2.0)[None, :, None]
+        slab_centers = face_centers[:, owner, :] + normals[:, owner, :] * offsets
+        hits = boxes_intersect(
+            slab_centers,
+            rotations[owner][None],
+            slab_half,
+            centers[other][None],
+            rotations[other][None],
+            half[other][None],
+        )  # (6, P)
+        for face in range(faces):
+            occluded[owner[hits[face]], face] = True
     return occluded
 
 

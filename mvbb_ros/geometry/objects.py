@@ -103,6 +103,8 @@ def separate_objects(
         the lower first index).
     """
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if not pts.flags.writeable:  # the compiled kernel's signature takes writable arrays
+        pts = pts.copy()
     if tolerance <= 0.0 or len(pts) < 2:
         return [np.arange(len(pts), dtype=np.intp)] if len(pts) >= min_points else []
     labels = _cluster_labels(pts, float(tolerance)).astype(np.intp)
@@ -141,20 +143,38 @@ def _join_pieces(
     cells, _ = raster.locate(points)
     seen = cells[:, 0] >= 0
     shape = raster.mask.shape
-    # Each piece's outline, grown by two cells, as sets of flat cell numbers.
+    # Each piece's outline, grown by two cells, as sorted flat cell numbers; the growing runs
+    # on the piece's own window of the raster, so a frame of many pieces stays linear.
     outlines: dict[int, IndexArray] = {}
     grown: dict[int, IndexArray] = {}
+    empty = np.empty(0, dtype=np.intp)
     for label in pieces.tolist():
         mine = seen & (labels == label)
-        outline = np.zeros(shape, dtype=bool)
-        outline[cells[mine, 0], cells[mine, 1]] = True
-        outlines[label] = np.flatnonzero(outline)
-        grown[label] = np.flatnonzero(ndimage.binary_dilation(outline, iterations=2))
+        if not mine.any():
+            outlines[label] = grown[label] = empty
+            continue
+        rows, cols = cells[mine, 0], cells[mine, 1]
+        outlines[label] = np.unique(rows * shape[1] + cols)
+        low = np.maximum([rows.min() - 2, cols.min() - 2], 0)
+        high = np.minimum([rows.max() + 3, cols.max() + 3], shape)
+        window = np.zeros(high - low, dtype=bool)
+        window[rows - low[0], cols - low[1]] = True
+        window_rows, window_cols = np.nonzero(ndimage.binary_dilation(window, iterations=2))
+        grown[label] = (window_rows + low[0]) * shape[1] + window_cols + low[1]
+    # Which pieces' outlines each grown outline reaches.
+    outline_cells = np.concatenate([outlines[label] for label in pieces.tolist()])
+    outline_labels = np.concatenate(
+        [np.full(len(outlines[label]), label) for label in pieces.tolist()]
+    )
+    reaches = {
+        label: set(np.unique(outline_labels[np.isin(outline_cells, grown[label])]).tolist())
+        for label in pieces.tolist()
+    }
     trees = {label: cKDTree(points[labels == label]) for label in pieces.tolist()}
     gap = PIECE_GAP_FACTOR * tolerance
     edges = []
     for first, second in itertools.combinations(pieces.tolist(), 2):
-        if not np.intersect1d(grown[first], outlines[second]).size:
+        if second not in reaches[first]:
             continue
         smaller, larger = sorted((first, second), key=lambda label: trees[label].n)
         distance, _ = trees[larger].query(trees[smaller].data, distance_upper_bound=gap)

@@ -111,19 +111,23 @@ def crop_box(
     """
     Return the crop box as (x0, y0, z0, x1, y1, z1) and whether there is one.
 
-    :param crop_min: lower corner; None or empty: no crop.
-    :param crop_max: upper corner; None or empty: no crop.
+    A corner left empty leaves the box open on that side (so either corner can be set or
+    cleared on its own, as ``ros2 param set`` does one parameter at a time).
+
+    :param crop_min: lower corner; None or empty: open below.
+    :param crop_max: upper corner; None or empty: open above. Both empty: no crop.
     :return: the box (zeros when there is none) and whether to crop.
-    :raises ValueError: the corners are not two 3-vectors without NaN.
+    :raises ValueError: a corner is not a 3-vector without NaN.
     """
-    if crop_min is None or crop_max is None or not np.size(crop_min) or not np.size(crop_max):
+    given = [corner is not None and np.size(corner) > 0 for corner in (crop_min, crop_max)]
+    if not any(given):
         return (0.0,) * 6, False
-    corners = np.concatenate(
-        [np.asarray(crop_min, float).reshape(-1), np.asarray(crop_max, float).reshape(-1)]
-    )
+    lower = np.asarray(crop_min, float).reshape(-1) if given[0] else np.full(3, -np.inf)
+    upper = np.asarray(crop_max, float).reshape(-1) if given[1] else np.full(3, np.inf)
+    corners = np.concatenate([lower, upper])
     if corners.shape != (6,) or np.isnan(corners).any():
         raise ValueError(
-            f'crop corners must be two 3-vectors without NaN, got {crop_min}, {crop_max}'
+            f'crop corners must be 3-vectors without NaN, got {crop_min!r}, {crop_max!r}'
         )
     return tuple(float(value) for value in corners), True
 
@@ -606,7 +610,7 @@ def filter_points(
     :param outlier_std_ratio: points whose mean distance to their neighbours is more than this
         many standard deviations above the cloud's mean are removed.
     :param crop_min: lower corner of an axis-aligned crop box (metres); None or empty: no crop.
-    :param crop_max: upper corner of the crop box; given together with `crop_min`.
+    :param crop_max: upper corner of the crop box; None or empty: open above.
     :param bounds: ``(2, 3)`` min and max corners of `points` when the decoder measured them
         (:class:`mvbb_ros.pipeline.decode.Decoded`): the points are then taken as already
         cropped to the crop box, and the voxel grid skips its own measuring pass.

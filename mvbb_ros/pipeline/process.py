@@ -68,7 +68,7 @@ class PipelineResult:
     throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
     Boxes are numbered across objects: :attr:`leaves` lists every object's leaves in object
     order, and each grasp's ``box_index`` indexes it. `refinement` says what the refinement
-    tried (None when it is off).
+    tried (None when it is off). `capped` says what a frame cap left out (``max_objects``).
     """
 
     counts: FilterCounts
@@ -77,6 +77,7 @@ class PipelineResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     warning: str | None = None
     refinement: RefinedGrasps | None = None
+    capped: list[str] = field(default_factory=list)
 
     @property
     def leaves(self) -> list[Box]:
@@ -113,13 +114,13 @@ class PipelineResult:
     @property
     def notes(self) -> list[str]:
         """
-        Return what to read the boxes with: objects whose hidden side was not estimated.
+        Return what to read the boxes with: frame caps, objects without a hidden side.
 
         A completion asked for but skipped (the points are not one view from the viewpoint: a
         whole model, merged views, or a cloud transformed without setting ``viewpoint``) leaves
         boxes fitted to the points as they are, carved into plates on a single view.
         """
-        return [
+        return self.capped + [
             f'object {item.index}: shape completion skipped, {item.shape.skipped}; its boxes fit '
             'the points as they are'
             for item in self.objects
@@ -260,6 +261,14 @@ def process_points(
         warning = f'no object of at least min_points = {min_points} points in the cloud'
         return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
 
+    capped = []
+    if 0 < view.max_objects < len(groups):
+        left_out = sum(len(group) for group in groups[view.max_objects :])
+        capped.append(
+            f'max_objects: kept the {view.max_objects} largest of {len(groups)} objects '
+            f'({left_out} points left out)'
+        )
+        groups = groups[: view.max_objects]
     objects = []
     timings['completion'] = timings['decompose'] = 0.0
     for index, members in enumerate(groups):
@@ -278,7 +287,7 @@ def process_points(
         objects.append(ObjectResult(index, members, shape, decomposition))
 
     start = time.perf_counter()
-    result = PipelineResult(counts=counts, objects=objects, timings_ms=timings)
+    result = PipelineResult(counts=counts, objects=objects, timings_ms=timings, capped=capped)
     refining = settings.refinement.enabled
     options = asdict(settings.grasps)
     if refining:

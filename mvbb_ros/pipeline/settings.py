@@ -98,12 +98,16 @@ class ViewSettings:
         whole cloud as one object (:func:`~mvbb_ros.geometry.objects.separate_objects`).
     :ivar completion: how each object's hidden side is estimated
         (:func:`~mvbb_ros.geometry.completion.complete_view`).
+    :ivar max_objects: the largest objects of a frame that are decomposed and grasped; the
+        others are left out and the result says so (0: all). With ``max_boxes`` it bounds the
+        boxes, and so the grasps, of a whole frame.
     """
 
     viewpoint: tuple[float, ...] = (0.0, 0.0, 0.0)
     up: tuple[float, ...] | None = None
     cluster_tolerance: float = 0.0
     completion: Completion = 'none'
+    max_objects: int = 0
 
 
 @dataclass(frozen=True)
@@ -142,6 +146,8 @@ class SettingSpec:
     :ivar node_default: the node's default, when it differs from the stage's own.
     :ivar unset: the parameter value that stands for None in the stage field (0, or ``()`` for
         an empty vector); None when the field is never None.
+    :ivar smallest_on: for a number whose 0 turns a feature off, the smallest other value (the
+        work below it cannot be bounded); None when every value of the range is accepted.
     """
 
     name: str
@@ -155,6 +161,7 @@ class SettingSpec:
     field: str | None = None
     node_default: Any = STAGE_DEFAULT
     unset: Any = None
+    smallest_on: float | None = None
 
     @property
     def attribute(self) -> str:
@@ -258,9 +265,10 @@ SPECS: tuple[SettingSpec, ...] = (
         'voxel_size',
         FilterSettings,
         float,
-        'Voxel down-sampling edge length in metres; 0 turns it off.',
+        'Voxel down-sampling edge length in metres, at least 0.0001; 0 turns it off.',
         (0.0, 10.0),
         node_default=0.005,
+        smallest_on=1e-4,
     ),
     SettingSpec(
         'outlier_neighbors',
@@ -283,14 +291,14 @@ SPECS: tuple[SettingSpec, ...] = (
         FilterSettings,
         list,
         'Lower corner (x, y, z) of a crop box in metres in the cloud frame; empty '
-        'turns cropping off.',
+        'leaves the box open below (both corners empty: no crop).',
         vector_length=3,
     ),
     SettingSpec(
         'crop_max',
         FilterSettings,
         list,
-        'Upper corner (x, y, z) of the crop box in metres; empty turns it off.',
+        'Upper corner (x, y, z) of the crop box in metres; empty leaves it open above.',
         vector_length=3,
     ),
     # The sensor view: objects and their hidden side (docs/single_views.md).
@@ -320,6 +328,15 @@ SPECS: tuple[SettingSpec, ...] = (
         'own. 0 treats the whole cloud as one object.',
         (0.0, 10.0),
         node_default=0.02,
+    ),
+    SettingSpec(
+        'max_objects',
+        ViewSettings,
+        int,
+        'The largest objects of a cloud that are decomposed and grasped; the rest are left '
+        'out and the diagnostics say so. 0 keeps every object.',
+        (0, 1000),
+        node_default=16,
     ),
     SettingSpec(
         'shape_completion',
@@ -649,6 +666,8 @@ def _check_number(spec: SettingSpec, value: Any) -> str | None:
     low, high = spec.value_range or (None, None)
     if (low is not None and value < low) or (high is not None and value > high):
         return f'{spec.name} must be in [{low}, {high}], got {value!r}'
+    if spec.smallest_on is not None and 0 < value < spec.smallest_on:
+        return f'{spec.name} must be 0 (off) or at least {spec.smallest_on}, got {value!r}'
     return None
 
 
@@ -678,9 +697,11 @@ def _check_vector(spec: SettingSpec, value: Any) -> str | None:
 def validate_combination(settings: PipelineSettings) -> str | None:
     """Return why settings that are each valid do not fit together, or None."""
     crop_min, crop_max = settings.filtering.crop_min, settings.filtering.crop_max
-    if bool(crop_min) != bool(crop_max):
-        return 'crop_min and crop_max must both be set (3 numbers each) or both empty'
-    if crop_min and any(low > high for low, high in zip(crop_min, crop_max, strict=True)):
+    if (
+        crop_min
+        and crop_max
+        and any(low > high for low, high in zip(crop_min, crop_max, strict=True))
+    ):
         return f'crop_min {crop_min} must not exceed crop_max {crop_max}'
     return None
 

@@ -10,8 +10,10 @@ No ROS import.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 import os
+from pathlib import Path
+import re
 import textwrap
 from typing import Any
 
@@ -84,6 +86,49 @@ def read_params_file(path: str | os.PathLike[str]) -> dict[str, Any]:
                         values[name] = float(value)
                 return values
     raise ValueError(f'{path} has no <node>: ros__parameters: mapping')
+
+
+def params_files(arguments: Sequence[str]) -> list[str]:
+    """Return the parameter files named by ``--params-file PATH`` in a ROS command line."""
+    return [
+        arguments[index + 1]
+        for index, word in enumerate(arguments[:-1])
+        if word == '--params-file'
+    ]
+
+
+def _section_matches(section: str, node: str) -> bool:
+    """Tell whether a parameter file's top-level key applies to the fully qualified `node`."""
+    key = '/' + section.lstrip('/')
+    if key in ('/**', node):
+        return True
+    pattern = re.escape(key).replace(r'/\*\*', '(/.*)?').replace(r'\*', '[^/]*')
+    return re.fullmatch(pattern, node) is not None
+
+
+def unmatched_params_files(arguments: Sequence[str], node: str) -> list[str]:
+    """
+    Return one line for each parameter file of `arguments` with no section for `node`.
+
+    ROS applies a file's ``<node>: ros__parameters:`` section only to a node of that name (or
+    the wildcards ``/**``, ``*``): a misspelt name leaves every value in the file unused, silently.
+
+    :param arguments: the process's command line (``--params-file PATH`` pairs are read).
+    :param node: the node's fully qualified name, e.g. ``/decomposer``.
+    """
+    lines = []
+    for path in params_files(arguments):
+        try:
+            document = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
+        except (OSError, yaml.YAMLError):
+            continue  # rclpy says what is wrong with an unreadable or malformed file
+        sections = [str(key) for key in document] if isinstance(document, dict) else []
+        if sections and not any(_section_matches(section, node) for section in sections):
+            lines.append(
+                f'parameter file {path} has no section for node {node} (its sections: '
+                f'{", ".join(sections)}); none of its values is used'
+            )
+    return lines
 
 
 def _yaml_value(value: Any) -> str:

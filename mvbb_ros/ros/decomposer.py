@@ -29,7 +29,12 @@ STARTUP_NODE = '_decomposer_startup'
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until SIGINT or shutdown; return 0 on a clean exit, 1 on bad parameters."""
-    rclpy.init(args=None if args is None else list(args))
+    arguments = list(sys.argv if args is None else args)
+    try:
+        rclpy.init(args=arguments)
+    except rclpy_implementation.RCLError as error:  # e.g. a parameter file that is not YAML
+        print(f'decomposer: cannot start: {str(error).splitlines()[0]}', file=sys.stderr)
+        return 2
     node = None
     try:
         startup = rclpy.create_node(
@@ -38,6 +43,10 @@ def main(args: Sequence[str] | None = None) -> int:
             enable_rosout=False,
             start_parameter_services=False,
         )
+        from mvbb_ros.kernels import announce_cold_start
+
+        announce_cold_start(rclpy.logging.get_logger('decomposer').info)
+        from mvbb_ros.pipeline.settings_text import unmatched_params_files
         from mvbb_ros.ros.node import DecomposerNode, NODE_NAME, UnknownParameterError
 
         try:
@@ -51,6 +60,8 @@ def main(args: Sequence[str] | None = None) -> int:
             return 1
         finally:
             startup.destroy_node()
+        for line in unmatched_params_files(arguments, node.get_fully_qualified_name()):
+            node.get_logger().warning(line)
         # What start-up loaded (numba, scipy, rclpy: some 140k objects) stays for good; frozen,
         # the garbage collector's full passes skip it instead of walking it during a cloud.
         gc.freeze()

@@ -57,3 +57,38 @@ class ReceptionLog:
     def waiting_s(self) -> float:
         """Return the seconds since the last cloud, or since the start before the first."""
         return self._clock() - (self._start if self._last is None else self._last)
+
+
+#: Seconds over which skipped clouds count as a sustained overload.
+OVERLOAD_WINDOW_S = 5.0
+
+
+class OverloadWatch:
+    """
+    Tell when the node skips clouds for a sustained while: it cannot keep up with the input.
+
+    :param window_s: how far back the counts are compared.
+    :param clock: the time source, seconds (``time.monotonic``; tests pass their own).
+    """
+
+    def __init__(
+        self, window_s: float = OVERLOAD_WINDOW_S, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self._window_s = window_s
+        self._clock = clock
+        self._samples: deque[tuple[float, int, int]] = deque()
+
+    def update(self, received: int, skipped: int) -> str | None:
+        """Record the counters now; return a warning when half the recent clouds were skipped."""
+        now = self._clock()
+        self._samples.append((now, received, skipped))
+        while now - self._samples[0][0] > self._window_s:
+            self._samples.popleft()
+        start, received_then, skipped_then = self._samples[0]
+        came, lost = received - received_then, skipped - skipped_then
+        if came >= 5 and 2 * lost >= came:
+            return (
+                f'overloaded: {lost} of the last {came} clouds were skipped because the node was '
+                f'busy ({now - start:.0f} s); lower the input rate or the work per cloud'
+            )
+        return None

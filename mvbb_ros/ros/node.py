@@ -48,9 +48,10 @@ from mvbb_ros.pipeline.settings import (
     unknown_setting_reason,
     validate_setting,
 )
-from mvbb_ros.ros.diagnostics import ReceptionLog
+from mvbb_ros.ros.diagnostics import OverloadWatch, ReceptionLog
 from mvbb_ros.ros.input import CloudInput
 from mvbb_ros.ros.messages import cleared_tree, diagnostic_status, output_messages, OUTPUT_TYPES
+from mvbb_ros.ros.worker import FrameWorker
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -126,6 +127,16 @@ _ARRAY_TYPES = (
 )
 
 
+def _typed(parameter: Parameter) -> Parameter:
+    """Return a parameter of a setting with the setting's own type where ROS inferred another."""
+    spec = SPEC_BY_NAME.get(parameter.name)
+    if spec is not None and spec.kind is list and parameter.type_ in _ARRAY_TYPES:
+        return vector_parameter(parameter.name, parameter.value)
+    if spec is not None and spec.kind is float and parameter.type_ is Parameter.Type.INTEGER:
+        return Parameter(parameter.name, Parameter.Type.DOUBLE, float(parameter.value))
+    return parameter
+
+
 def vector_parameter(name: str, value: Any) -> Parameter:
     """
     Return a vector setting as a DOUBLE_ARRAY parameter when its value is numbers or empty.
@@ -178,7 +189,7 @@ class DecomposerNode(Node):
         # Validation runs before declaration takes effect: rclpy calls this on every declared
         # override, so a bad value in a YAML file raises at start-up with our reason.
         self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_pre_set_parameters_callback(self._typed_vectors)
+        self.add_pre_set_parameters_callback(self._typed_parameters)
         self._declare_parameters()
         self._check_unknown_parameters()
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -211,7 +222,9 @@ class DecomposerNode(Node):
             self._settings.node.input_reliability,
             self._settings.node.input_depth,
         )
-        self._reprocess_trigger = self.create_guard_condition(self._reprocess_last_cloud)
+        # Frames run on their own thread: services and diagnostics answer during a frame.
+        self._worker = FrameWorker(self._run_frame, name='decomposer frames')
+        self._overload = OverloadWatch()
         # The wall clock: diagnostics go on while a bag is paused under use_sim_time.
         self._diagnostics_timer = self.create_timer(
             DIAGNOSTICS_PERIOD_S,
@@ -233,6 +246,9 @@ class DecomposerNode(Node):
         for spec in SPECS:
             descriptor = parameter_descriptor(spec)
             default = self._settings.value(spec.name)
+            override = self._parameter_overrides.get(spec.name)
+            if override is not None and spec.kind is float:  # `-p tolerance:=0` is an integer
+                self._parameter_overrides[spec.name] = _typed(override)
             if spec.kind is not list:
                 self.declare_parameter(spec.name, default, descriptor)
                 continue
@@ -252,16 +268,9 @@ class DecomposerNode(Node):
         }
         self._settings = PipelineSettings().updated(values)
 
-    def _typed_vectors(self, parameters: list[Parameter]) -> list[Parameter]:
-        """Turn numbers and empty arrays given for a vector into DOUBLE_ARRAY (pre-set)."""
-        return [
-            vector_parameter(parameter.name, parameter.value)
-            if parameter.name in SPEC_BY_NAME
-            and SPEC_BY_NAME[parameter.name].kind is list
-            and parameter.type_ in _ARRAY_TYPES
-            else parameter
-            for parameter in parameters
-        ]
+    def _typed_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
+        """Give each value its setting's type: vectors as DOUBLE_ARRAY, integers as doubles."""
+        return [_typed(parameter) for parameter in parameters]
 
     def _check_unknown_parameters(self) -> None:
         """Refuse parameters given for this node that it does not have (misspelt keys)."""
@@ -315,7 +324,7 @@ class DecomposerNode(Node):
             header = self._last_cloud.header if self._last_cloud is not None else Header()
             self._publishers_by_suffix['tree'].publish(cleared_tree(header))
         if self._last_cloud is not None and set(changes) - {'input_reliability', 'input_depth'}:
-            self._reprocess_trigger.trigger()
+            self._worker.again()
 
     @property
     def settings(self) -> PipelineSettings:
@@ -333,12 +342,33 @@ class DecomposerNode(Node):
         self._stats['clouds_received'] += 1
         self._receptions.record()
         self._last_cloud = cloud
-        self._process(cloud, reprocess=False)
+        self._worker.submit(cloud)
 
-    def _reprocess_last_cloud(self) -> None:
-        if self._last_cloud is not None:
+    def _run_frame(self, cloud: PointCloud2 | None) -> None:
+        """Process a new cloud, or (None) the last cloud again; on the worker thread."""
+        if cloud is not None:
+            self._process(cloud, reprocess=False)
+        elif self._last_cloud is not None:
             self._stats['clouds_reprocessed'] += 1
             self._process(self._last_cloud, reprocess=True)
+
+    def diagnostic_counts(self) -> dict[str, int]:
+        """Return the clouds counted so far, as the diagnostics report them."""
+        return {
+            **self._stats,
+            'clouds_skipped_busy': self._worker.skipped,
+            'parameter_changes_merged': self._worker.merged,
+        }
+
+    @property
+    def frames(self) -> FrameWorker:
+        """Return the worker that processes the frames (its skipped and merged counts)."""
+        return self._worker
+
+    def destroy_node(self) -> None:
+        """Finish the frame in progress, then leave the graph."""
+        self._worker.stop()
+        super().destroy_node()
 
     def _process(self, cloud: PointCloud2, *, reprocess: bool) -> None:
         """Run the pipeline on `cloud` and publish; any failure publishes cleared outputs."""
@@ -434,8 +464,11 @@ class DecomposerNode(Node):
 
     def _publish_diagnostics(self) -> None:
         result = self._last_result
-        values: dict[str, object] = dict(self._stats)
+        values: dict[str, object] = dict(self.diagnostic_counts())
         input_values, problems = self._input_values()
+        overload = self._overload.update(self._stats['clouds_received'], self._worker.skipped)
+        if overload is not None:
+            problems.append(overload)
         values.update(input_values)
         if result is not None:
             values.update(
@@ -451,8 +484,11 @@ class DecomposerNode(Node):
             note = empty_grasps_note(result, self._settings)
             if note:
                 values['no_grasps_because'] = note
-            if result.notes:
-                values['completion_skipped'] = '; '.join(result.notes)
+            if result.capped:
+                values['capped'] = '; '.join(result.capped)
+            skipped = [note for note in result.notes if note not in result.capped]
+            if skipped:
+                values['completion_skipped'] = '; '.join(skipped)
         if self._last_error is not None:
             level, message = DiagnosticStatus.ERROR, f'processing failed: {self._last_error}'
         elif result is not None and result.warning is not None:
