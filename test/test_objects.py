@@ -72,3 +72,28 @@ def test_property_cluster_labels_are_the_connected_components(points, tolerance)
     # Labels are numbered by first point.
     first = [int(np.flatnonzero(labels == label)[0]) for label in range(count)]
     assert first == sorted(first)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    count=st.integers(2, 400),
+    spread=st.floats(0.001, 0.3),
+    tolerance=st.floats(0.002, 0.05),
+)
+def test_property_clusters_are_the_components_of_the_pairs_within_the_tolerance(
+    seed, count, spread, tolerance
+):
+    """Dense cells join without a test, sparse ones pair by pair: the same clusters."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-spread, spread, size=(4, 3))
+    points = centres[rng.integers(0, 4, count)] + rng.normal(scale=spread / 10, size=(count, 3))
+    pairs = cKDTree(points).query_pairs(tolerance, output_type='ndarray')
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
+    _, components = connected_components(graph, directed=False)
+    labels = _cluster_labels(np.ascontiguousarray(points), tolerance)
+    # Same partition, labels numbered by first point.
+    _, first = np.unique(components, return_index=True)
+    names = np.empty(components.max() + 1, dtype=np.int64)
+    names[components[np.sort(first)]] = np.arange(len(first))
+    np.testing.assert_array_equal(labels, names[components])

@@ -39,37 +39,83 @@ def _root(parent: IndexArray, node: int) -> int:
     return node
 
 
+#: Cells are this fraction of the tolerance wide: any two points of one cell are closer than
+#: the tolerance (the cell's diagonal is shorter), so a cell's points join without a test.
+_CELL_FRACTION = (1.0 - 1e-9) / np.sqrt(3.0)
+
+#: How many cells a pair of points within the tolerance can lie apart along an axis.
+_CELL_REACH = 2
+
+
+@nb.njit(cache=True)
+def _join_if_close(
+    points: FloatArray,
+    parent: IndexArray,
+    order: IndexArray,
+    start: int,
+    end: int,
+    other: int,
+    other_end: int,
+    squared: float,
+) -> None:
+    """Join two cells' clusters when some pair of their points is within the tolerance."""
+    for a in range(start, end):
+        i = order[a]
+        for b in range(other, other_end):
+            j = order[b]
+            distance = 0.0
+            for axis in range(3):
+                delta = points[i, axis] - points[j, axis]
+                distance += delta * delta
+            if distance <= squared:
+                mine, theirs = _root(parent, i), _root(parent, j)
+                if mine != theirs:
+                    parent[max(mine, theirs)] = min(mine, theirs)
+                return
+
+
 @nb.njit('int64[:](float64[:, :], float64)', cache=True)
 def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
     """
     Label the Euclidean clusters of `points` at `tolerance` (labels 0 .. k-1, by first point).
 
-    Points are binned in cubic cells one tolerance wide; each point is compared with the points
-    of its own cell and the 26 around it (:mod:`mvbb_ros.geometry.cells`), and
-    pairs closer than the tolerance are joined in a union-find forest. O(N) for even clouds.
+    Points are binned in cubic cells whose diagonal is shorter than the tolerance
+    (:mod:`mvbb_ros.geometry.cells`): a cell's points are one cluster at once, and two cells up
+    to two apart join when any pair of their points is within the tolerance (the search stops
+    at the first). Near-linear in the points however dense the cloud: the work grows with the
+    occupied cells, not with the points per cell squared.
     """
     count = points.shape[0]
-    cells, span, order, sorted_keys = cell_grid(points, tolerance, 1)
+    cells, span, order, sorted_keys = cell_grid(points, tolerance * _CELL_FRACTION, _CELL_REACH)
     parent = np.arange(count)
     squared = tolerance * tolerance
-    for i in range(count):
-        for dx in range(-1, 2):
-            for dy in range(-1, 2):
-                first, last = column_keys(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2], 1, span)
-                for k in range(cell_start(sorted_keys, first), count):
-                    if sorted_keys[k] > last:
-                        break
-                    j = order[k]
-                    if j <= i:
-                        continue
-                    distance = 0.0
-                    for axis in range(3):
-                        delta = points[i, axis] - points[j, axis]
-                        distance += delta * delta
-                    if distance <= squared:
-                        mine, theirs = _root(parent, i), _root(parent, j)
-                        if mine != theirs:
-                            parent[max(mine, theirs)] = min(mine, theirs)
+    start = 0
+    while start < count:
+        key = sorted_keys[start]
+        end = start
+        while end < count and sorted_keys[end] == key:
+            end += 1
+        first = order[start]
+        for k in range(start + 1, end):  # one cell: one cluster
+            mine, theirs = _root(parent, first), _root(parent, order[k])
+            if mine != theirs:
+                parent[max(mine, theirs)] = min(mine, theirs)
+        x, y, z = cells[first, 0], cells[first, 1], cells[first, 2]
+        for dx in range(-_CELL_REACH, _CELL_REACH + 1):
+            for dy in range(-_CELL_REACH, _CELL_REACH + 1):
+                low, high = column_keys(x + dx, y + dy, z, _CELL_REACH, span)
+                other = cell_start(sorted_keys, max(low, key + 1))  # each pair of cells once
+                while other < count and sorted_keys[other] <= high:
+                    other_key = sorted_keys[other]
+                    other_end = other
+                    while other_end < count and sorted_keys[other_end] == other_key:
+                        other_end += 1
+                    if _root(parent, first) != _root(parent, order[other]):
+                        _join_if_close(
+                            points, parent, order, start, end, other, other_end, squared
+                        )
+                    other = other_end
+        start = end
     labels = np.empty(count, dtype=np.int64)
     names = np.full(count, -1, dtype=np.int64)
     next_label = 0
