@@ -161,7 +161,7 @@ class Bench:
     """The node's work for one cloud, step by step, and the Open3D reference chain."""
 
     def __init__(self, settings) -> None:
-        from mvbb_ros.geometry import decomposition
+        from mvbb_ros.geometry.decomposition import tree as decomposition
         from mvbb_ros.ros.messages import OUTPUT_TYPES
         import rclpy
 

@@ -20,7 +20,7 @@ from conftest import require_shared_data
 from geometry_msgs.msg import PoseArray
 from mvbb_ros.cli.main import main
 from mvbb_ros.common.progress import ProgressBar
-from mvbb_ros.geometry.grasps import GraspStats
+from mvbb_ros.geometry.grasping.hypotheses import GraspStats
 from mvbb_ros.pipeline import explain
 from mvbb_ros.pipeline.decode import read_xyz
 from mvbb_ros.pipeline.explain import empty_grasps_note

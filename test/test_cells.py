@@ -3,7 +3,7 @@
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from mvbb_ros.geometry.cells import cell_grid, cell_key, cell_start, key_order
+from mvbb_ros.geometry.views.cells import cell_grid, cell_key, cell_start, key_order
 import numpy as np
 
 

@@ -7,9 +7,9 @@ import math
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.completion import complete_view, MAX_SAMPLES
-from mvbb_ros.geometry.fit import minimum_bounding_box
-from mvbb_ros.geometry.raster import behind_others, view_raster
+from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
+from mvbb_ros.geometry.views.completion import complete_view, MAX_SAMPLES
+from mvbb_ros.geometry.views.raster import behind_others, view_raster
 from mvbb_ros.pipeline.filtering import filter_points
 import numpy as np
 import pytest
@@ -180,7 +180,7 @@ def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
 
     The plane search gives up a plane once it is worse than the best tried before it.
     """
-    from mvbb_ros.geometry.completion import _middle_out, plane_violations
+    from mvbb_ros.geometry.views.completion import _middle_out, plane_violations
 
     points, box, _ = box_view(np.array([0.12, 0.08, 0.2]), yaw, elevation, 0.7, seed=seed)
     raster = view_raster(points, np.zeros(3), SPACING)
@@ -205,7 +205,7 @@ def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
 @given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 300), st.integers(0, 2**31 - 1))
 def test_the_outline_is_scipys_closing_and_minimum_filter(rows, cols, count, seed):
     """The raster's compiled mask and nearest ranges are scipy.ndimage's, exactly."""
-    from mvbb_ros.geometry import raster
+    from mvbb_ros.geometry.views import raster
     from scipy import ndimage
 
     rng = np.random.default_rng(seed)

@@ -11,7 +11,7 @@ from mvbb_ros.evaluation.coverage import (
     thin_count,
 )
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
 import numpy as np
 import open3d as o3d
 import pytest

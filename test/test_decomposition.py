@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 import mvbb_ros
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition import ORDERS, RESCORE_MARGIN, STOP_REASONS
-from mvbb_ros.geometry.fit import fit_part
-from mvbb_ros.geometry.split import cut_mask, score_cuts
+from mvbb_ros.geometry.boxfit.fit import fit_part
+from mvbb_ros.geometry.decomposition.split import cut_mask, score_cuts
+from mvbb_ros.geometry.decomposition.tree import ORDERS, RESCORE_MARGIN, STOP_REASONS
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -260,7 +260,8 @@ def fitting_every_part(points: np.ndarray, **options) -> mvbb_ros.Decomposition:
     """Decompose with both parts of every candidate cut fitted: no bound, no skipped fit."""
     from unittest import mock
 
-    from mvbb_ros.geometry import decomposition, split
+    from mvbb_ros.geometry.decomposition import split
+    from mvbb_ros.geometry.decomposition import tree as decomposition
 
     def every_part(points, draft, settings, fit_parts, others=None):
         box = draft.box

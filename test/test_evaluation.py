@@ -15,7 +15,7 @@ from mvbb_ros.evaluation.simulation import evaluate_grasps, grasp_quality
 from mvbb_ros.evaluation.spherical import expected_best_of, spherical_grasps
 from mvbb_ros.evaluation.wrench import contact_quality, wrench_space_quality
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.grasps import grasp_hypotheses
+from mvbb_ros.geometry.grasping.hypotheses import grasp_hypotheses
 import numpy as np
 import open3d as o3d
 import pytest

@@ -2,8 +2,8 @@
 Minimum-volume bounding box (issues 3 and 17): the compiled fit and its orientation search.
 
 Sections: input handling; degenerate and extreme clouds; exact answers on known shapes; one axis
-and the search (mvbb_ros.geometry.search); quality on the shared reference clouds; properties
-(hypothesis). The hull and the 2D rectangles have their own tests (test_hull.py,
+and the search (mvbb_ros.geometry.boxfit.search); quality on the shared reference clouds;
+properties (hypothesis). The hull and the 2D rectangles have their own tests (test_hull.py,
 test_rectangle.py).
 """
 
@@ -13,10 +13,10 @@ from conftest import require_shared_data, SHARED_DATA
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.geometry import fit, hull, search
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import fit_box, fit_part, minimum_bounding_box, PART_SEARCH
-from mvbb_ros.geometry.rectangle import min_area_rectangle
+from mvbb_ros.geometry.boxfit import fit, hull, search
+from mvbb_ros.geometry.boxfit.fit import fit_box, fit_part, minimum_bounding_box, PART_SEARCH
+from mvbb_ros.geometry.boxfit.rectangle import min_area_rectangle
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull

@@ -1,4 +1,4 @@
-"""Tests for face-approach grasp hypotheses (mvbb_ros.geometry.grasps)."""
+"""Tests for face-approach grasp hypotheses (mvbb_ros.geometry.grasping.hypotheses)."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from mvbb_ros import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition import (
+from mvbb_ros.geometry.decomposition.tree import (
     Decomposition,
     DecompositionNode,
     DecompositionSettings,
 )
-import mvbb_ros.geometry.grasps as grasp_module
-from mvbb_ros.geometry.grasps import grasp_filter_counts
+import mvbb_ros.geometry.grasping.hypotheses as grasp_module
+from mvbb_ros.geometry.grasping.hypotheses import grasp_filter_counts
 import numpy as np
 import pytest
 from scipy.optimize import linprog
@@ -682,7 +682,7 @@ def test_outermost_centroid_ignores_points_dropped_as_noise():
 
 @pytest.mark.parametrize('gain_threshold', [0.90, 0.98])
 def test_real_bunny_decomposition(shared_data, gain_threshold):
-    decomposition_module = pytest.importorskip('mvbb_ros.geometry.decomposition')
+    decomposition_module = pytest.importorskip('mvbb_ros.geometry.decomposition.tree')
     points = np.load(shared_data / 'models' / 'bunny_vertices.npy').astype(np.float64)  # metres
     decomposition = decomposition_module.decompose(points, gain_threshold=gain_threshold)
     leaves = decomposition.leaves

@@ -1,9 +1,9 @@
-"""The compiled quickhull and grid coreset (mvbb_ros.geometry.hull): exactness, topology, rank."""
+"""The compiled quickhull and grid coreset (geometry/boxfit/hull.py): exactness, topology, rank."""
 
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.geometry import hull
+from mvbb_ros.geometry.boxfit import hull
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull

@@ -60,13 +60,14 @@ def test_the_stamp_covers_the_kernel_modules_a_module_imports():
                     waiting.append(file)
         return {file.stem for file in seen}
 
-    assert {'fit', 'search', 'hull', 'rectangle', 'box'} <= covered('fit')
-    assert 'fit' not in covered('hull')
-    assert {'raster', 'cells'} <= covered('objects')
-    assert {'raster', 'fit', 'hull'} <= covered('completion')
-    fit_file = (PACKAGE / 'geometry' / 'fit.py').resolve()
+    assert {'fit', 'search', 'hull', 'rectangle', 'box'} <= covered('boxfit/fit')
+    assert 'fit' not in covered('boxfit/hull')
+    assert {'raster', 'cells'} <= covered('views/objects')
+    assert {'raster', 'fit', 'hull'} <= covered('views/completion')
+    assert {'surface', 'cells', 'hypotheses', 'tree', 'split'} <= covered('grasping/contacts')
+    fit_file = (PACKAGE / 'geometry' / 'boxfit' / 'fit.py').resolve()
     assert kernel_cache.dependency_digest(fit_file) != kernel_cache.dependency_digest(
-        (PACKAGE / 'geometry' / 'hull.py').resolve()
+        (PACKAGE / 'geometry' / 'boxfit' / 'hull.py').resolve()
     )
 
 

@@ -115,7 +115,7 @@ def test_every_module_is_imported_by_the_layer_test():
     assert set(MODULES) - set(OUTSIDE_ROS) == {
         name for name in MODULES if name.split('.')[:2] == ['mvbb_ros', 'ros']
     }
-    assert 'mvbb_ros.ros.node' in MODULES and 'mvbb_ros.geometry.fit' in MODULES
+    assert 'mvbb_ros.ros.node' in MODULES and 'mvbb_ros.geometry.boxfit.fit' in MODULES
 
 
 #: Which layers each layer may import at module level (arrays and common are shared by all;

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from mvbb_ros.geometry.objects import _cluster_labels, separate_objects
+from mvbb_ros.geometry.views.objects import _cluster_labels, separate_objects
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components

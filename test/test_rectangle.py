@@ -1,9 +1,9 @@
-"""The compiled 2D hull and rotating calipers (mvbb_ros.geometry.rectangle)."""
+"""The compiled 2D hull and rotating calipers (mvbb_ros.geometry.boxfit.rectangle)."""
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.geometry.rectangle import calipers_kernel, hull_2d_kernel, min_area_rectangle
+from mvbb_ros.geometry.boxfit.rectangle import calipers_kernel, hull_2d_kernel, min_area_rectangle
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull

@@ -10,18 +10,17 @@ from hypothesis import strategies as st
 from mvbb_ros import grasp_hypotheses, PipelineSettings, process_points
 from mvbb_ros.evaluation.grasp_judge import same_grasp
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.contacts import (
+from mvbb_ros.geometry.grasping.contacts import (
     COL_CONTACT_WIDTH,
     COL_MARGIN,
     COL_QUALITY,
     COL_VALID,
     COL_WIDTH,
     evaluate_lines,
-    GraspView,
-    RefinementSettings,
 )
-from mvbb_ros.geometry.refine import refine_grasps
-from mvbb_ros.geometry.surface import surface_model
+from mvbb_ros.geometry.grasping.refine import refine_grasps
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
+from mvbb_ros.geometry.grasping.surface import surface_model
 from mvbb_ros.pipeline.process import GraspMemory
 import numpy as np
 import pytest
@@ -144,7 +143,7 @@ def test_an_object_wider_than_the_opening_is_not_grasped_across():
 
 
 def _refined(points, *, up=None, viewpoint=None, far_side=True, width=0.14, previous=None):
-    from mvbb_ros.geometry.decomposition import decompose
+    from mvbb_ros.geometry.decomposition.tree import decompose
 
     decomposition = decompose(points, gain_threshold=0.94)
     seeds = grasp_hypotheses(decomposition, gripper_max_width=width)

@@ -10,11 +10,11 @@ from mvbb_ros import decompose, grasp_hypotheses, PipelineSettings, process_poin
 from mvbb_ros.cli.main import build_parser, main
 from mvbb_ros.cli.options import settings_from_args
 from mvbb_ros.cli.synthetic import segmented_object_cloud
-from mvbb_ros.geometry.completion import COMPLETIONS
-from mvbb_ros.geometry.contacts import RefinementSettings
-from mvbb_ros.geometry.decomposition import DecompositionSettings
-from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
-from mvbb_ros.geometry.split import SPLIT_MEASURES
+from mvbb_ros.geometry.decomposition.split import SPLIT_MEASURES
+from mvbb_ros.geometry.decomposition.tree import DecompositionSettings
+from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
+from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
+from mvbb_ros.geometry.views.completion import COMPLETIONS
 from mvbb_ros.pipeline.settings import (
     FilterSettings,
     NodeSettings,

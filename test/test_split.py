@@ -7,8 +7,8 @@ import itertools
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from mvbb_ros.geometry import split
 from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.decomposition import split
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

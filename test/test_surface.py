@@ -9,8 +9,8 @@ import math
 
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from mvbb_ros.geometry import surface
-from mvbb_ros.geometry.contacts import (
+from mvbb_ros.geometry.grasping import surface
+from mvbb_ros.geometry.grasping.contacts import (
     _evaluate,
     _parameters,
     _place_hand,
@@ -18,12 +18,11 @@ from mvbb_ros.geometry.contacts import (
     COL_VALID,
     COL_WIDTH,
     evaluate_lines,
-    GraspView,
     HAND_BEYOND_REACH,
     P_REACH_SLACK,
     REACH_SLACK,
-    RefinementSettings,
 )
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -63,7 +62,7 @@ def _brute_force_normals(points: np.ndarray, radius: float) -> np.ndarray:
 @settings(max_examples=10, deadline=None)
 @given(st.integers(20, 400), st.integers(0, 2**31 - 1), st.floats(0.004, 0.03))
 def test_normals_are_the_pca_of_every_neighbour_within_the_radius(count, seed, radius):
-    """The cell lookup (geometry/cells.py) finds exactly the neighbours a full search finds."""
+    """The cell lookup (views/cells.py) finds exactly the neighbours a full search finds."""
     points = _wavy_sheet(count, seed)
     mine = surface._pca_normals(points, radius)
     theirs = _brute_force_normals(points, radius)

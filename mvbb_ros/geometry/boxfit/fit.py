@@ -5,10 +5,10 @@ Huebner et al. (ICRA 2008), Section III-A, fit every box with the approximation 
 Har-Peled (2001): find good directions, search a small grid of directions around the best frame,
 improve the best box locally, and finally grow it to enclose every point. This module follows that
 scheme on the convex hull (the box of a point set is the box of its hull), with exact 2D steps:
-the orientation search (:mod:`mvbb_ros.geometry.search`) turns candidate boxes to their best
+the orientation search (:mod:`mvbb_ros.geometry.boxfit.search`) turns candidate boxes to their best
 rotation about one axis (the minimum-area rectangle of the hull's silhouette, by rotating
-calipers, :mod:`mvbb_ros.geometry.rectangle`), on candidate axes from hull facets and edge pairs
-(O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
+calipers, :mod:`mvbb_ros.geometry.boxfit.rectangle`), on candidate axes from hull facets and edge
+pairs (O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
 Har-Peled's grid of directions around the result. The final box is the smallest of the searched
 frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
 worse than either, and always enclosing.
@@ -19,12 +19,13 @@ What runs where, for N points whose searched hull has H vertices, F ~ 2H facets 
 1. Bounding box, PCA of an evenly spread sample of at most 4096 points, every point in the PCA
    frame centred on the bounding box and scaled to unit size: O(N), three passes.
 2. Clouds of ``coreset_min`` points or more (default 65,536): Barequet and Har-Peled's grid
-   coreset (:func:`mvbb_ros.geometry.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
+   coreset (:func:`mvbb_ros.geometry.boxfit.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
    points kept.
-3. Quickhull (:func:`mvbb_ros.geometry.hull.quickhull_kernel`) on all points or the coreset:
+3. Quickhull (:func:`mvbb_ros.geometry.boxfit.hull.quickhull_kernel`) on all points or the coreset:
    O(N log H).
-4. The orientation search on the hull (:func:`mvbb_ros.geometry.search.search_kernel`): candidate
-   ranking O(K (H + F)), then 60 to 120 axes at O(F + E + S) each for silhouettes of S vertices.
+4. The orientation search on the hull (:func:`mvbb_ros.geometry.boxfit.search.search_kernel`):
+   candidate ranking O(K (H + F)), then 60 to 120 axes at O(F + E + S) each for silhouettes of S
+   vertices.
 5. Enclose every point in each candidate frame: O(N).
 
 Degenerate clouds never reach the hull: the extents in the PCA frame give the affine rank (an
@@ -49,10 +50,16 @@ import math
 from typing import NamedTuple
 
 from mvbb_ros.arrays import FloatArray
-from mvbb_ros.geometry import hull as hull_module
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.rectangle import calipers_kernel, hull_2d_kernel
-from mvbb_ros.geometry.search import copy_frame, frame_volume, new_work, polish, search_kernel
+from mvbb_ros.geometry.boxfit import hull as hull_module
+from mvbb_ros.geometry.boxfit.rectangle import calipers_kernel, hull_2d_kernel
+from mvbb_ros.geometry.boxfit.search import (
+    copy_frame,
+    frame_volume,
+    new_work,
+    polish,
+    search_kernel,
+)
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike

@@ -2,7 +2,7 @@
 Convex hull of a 3D point set in compiled code: quickhull with adjacency, and a grid coreset.
 
 The minimum box of a point set is the minimum box of its convex hull, so the box search
-(:mod:`mvbb_ros.geometry.search`) only looks at hull vertices, facet normals and edges.
+(:mod:`mvbb_ros.geometry.boxfit.search`) only looks at hull vertices, facet normals and edges.
 :func:`quickhull_kernel` builds a triangulated hull with the neighbour of every facet across each
 of its edges (Barber, Dobkin and Huhdanpaa's quickhull: repeatedly add the point farthest above a
 facet, replace the facets it sees by a fan to their horizon, and hand the points those facets
@@ -26,8 +26,8 @@ So :func:`quickhull_kernel` never raises and never loops: every step adds or dro
 Inputs that span fewer than three dimensions (to the tolerance) return their affine rank instead
 of a hull. What rounding can still do: on clouds thinner than about 1e-5 of their size with many
 exactly coplanar points, points coplanar with sliver facets may be dropped although they stick
-out (measured on fuzzed grids; :mod:`mvbb_ros.geometry.fit` searches such clouds on their plane
-as well).
+out (measured on fuzzed grids; :mod:`mvbb_ros.geometry.boxfit.fit` searches such clouds on their
+plane as well).
 
 :func:`column_extremes_kernel` is Barequet and Har-Peled's grid coreset: the highest and lowest
 point of every column of a grid, along each axis. Large clouds are hulled on it (every point is

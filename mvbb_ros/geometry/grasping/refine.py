@@ -1,14 +1,14 @@
 """
 Grasps checked, refined and scored on the points: the paper's face hypotheses as seeds.
 
-The paper's hypotheses (:func:`~mvbb_ros.geometry.grasps.grasp_hypotheses`) approach a box
-face centre; on a curved or partly seen object that centre rarely gives two antipodal contacts.
+The paper's hypotheses (:func:`~mvbb_ros.geometry.grasping.hypotheses.grasp_hypotheses`) approach a
+box face centre; on a curved or partly seen object that centre rarely gives two antipodal contacts.
 :func:`refine_grasps` tries each seed, slid over its face and rolled a little, and more
 candidates closing along every box axis (approaching along the other axes, from above and from
-the sensor), on each object's surface (:mod:`mvbb_ros.geometry.surface`) with the pad gripper
-of :mod:`mvbb_ros.geometry.contacts`; it keeps the feasible approaches (none from below, none
-from the far side), scores what holds by its quality over small pose errors and how near its
-contacts' line passes the object's centre, with the task strategy's preference, and drops
+the sensor), on each object's surface (:mod:`mvbb_ros.geometry.grasping.surface`) with the pad
+gripper of :mod:`mvbb_ros.geometry.grasping.contacts`; it keeps the feasible approaches (none from
+below, none from the far side), scores what holds by its quality over small pose errors and how
+near its contacts' line passes the object's centre, with the task strategy's preference, and drops
 repeats. :func:`rescore_grasp` checks a previous frame's grasp
 on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 ``docs/grasp_rules.md``.
@@ -22,7 +22,7 @@ import math
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.contacts import (
+from mvbb_ros.geometry.grasping.contacts import (
     COL_CENTER,
     COL_DEPTH,
     COL_FIRST,
@@ -32,11 +32,10 @@ from mvbb_ros.geometry.contacts import (
     COL_WIDTH,
     evaluate_lines,
     EVALUATION_COLUMNS,
-    GraspView,
-    RefinementSettings,
 )
-from mvbb_ros.geometry.grasps import FAR_SIDE_MARGIN_DEG, Grasp, gripper_quaternions
-from mvbb_ros.geometry.surface import SurfaceModel
+from mvbb_ros.geometry.grasping.hypotheses import FAR_SIDE_MARGIN_DEG, Grasp, gripper_quaternions
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
+from mvbb_ros.geometry.grasping.surface import SurfaceModel
 import numba as nb
 import numpy as np
 

@@ -2,10 +2,10 @@
 One object's surface as the grasp check sees it: occupancy-grid boundary cells with normals.
 
 :func:`surface_model` bins an object's points (the observed ones, then the estimate of the
-hidden side, :class:`~mvbb_ros.geometry.completion.CompletedView`) in cubic cells, closes small
-holes and keeps the cells with an empty face neighbour, each as the centroid of its points; the
-normals are the PCA of the surface points nearby (:func:`_pca_normals`, a numba kernel that
-finds neighbours with :mod:`mvbb_ros.geometry.cells`). Observed cells weigh more than
+hidden side, :class:`~mvbb_ros.geometry.views.completion.CompletedView`) in cubic cells, closes
+small holes and keeps the cells with an empty face neighbour, each as the centroid of its points;
+the normals are the PCA of the surface points nearby (:func:`_pca_normals`, a numba kernel that
+finds neighbours with :mod:`mvbb_ros.geometry.views.cells`). Observed cells weigh more than
 estimated ones. The rules: ``docs/grasp_rules.md``.
 """
 
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import math
 
 from mvbb_ros.arrays import column_min, column_span, FloatArray
-from mvbb_ros.geometry.cells import cell_grid, cell_start, column_keys
+from mvbb_ros.geometry.views.cells import cell_grid, cell_start, column_keys
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -188,7 +188,7 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     :data:`MIN_NEIGHBOURS` are that close (sparse samples). A point is on an edge when the
     surface variation exceeds :data:`EDGE_VARIATION` both in that neighbourhood and in one twice
     as wide: sensor noise varies less in the wider one, an edge does not. The points are binned
-    in cubic cells one radius wide (:func:`~mvbb_ros.geometry.cells.cell_grid`) and the cells
+    in cubic cells one radius wide (:func:`~mvbb_ros.geometry.views.cells.cell_grid`) and the cells
     around each point are looked up in the sorted cell keys.
     """
     count = points.shape[0]

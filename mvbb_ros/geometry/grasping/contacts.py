@@ -2,36 +2,25 @@
 A pad gripper closing on a surface model: does it hold, how well, and how wide.
 
 :func:`evaluate_lines` moves a gripper with two square pads along each candidate line (a point,
-an approach and a closing direction) on a :class:`~mvbb_ros.geometry.surface.SurfaceModel`:
-to the first contact and past it by a finger depth, centred on what the fingers pass. The line
-holds when no finger meets the object on the way, both pads touch within the opening, the pads
-stay above the support, and the line between the two contacts lies inside both friction cones;
-its quality in [0, 1] weighs the cone margin, the pads' support and the fingers' clearance.
-The inner loop is the numba kernel :func:`_evaluate`; the rules: ``docs/grasp_rules.md``.
-The settings of the refinement (:class:`RefinementSettings`) and what it knows of the view and
-the gripper (:class:`GraspView`) are here, as the check uses most of them.
+an approach and a closing direction) on a
+:class:`~mvbb_ros.geometry.grasping.surface.SurfaceModel`: to the first contact and past it by a
+finger depth, centred on what the fingers pass. The line holds when no finger meets the object on
+the way, both pads touch within the opening, the pads stay above the support, and the line between
+the two contacts lies inside both friction cones; its quality in [0, 1] weighs the cone margin, the
+pads' support and the fingers' clearance. The inner loop is the numba kernel :func:`_evaluate`; the
+rules: ``docs/grasp_rules.md``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
 
 from mvbb_ros.arrays import FloatArray
-from mvbb_ros.geometry.grasps import ApproachAxis, Strategy
-from mvbb_ros.geometry.surface import surface_model, SurfaceModel
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
+from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
 import numba as nb
 import numpy as np
 
-#: Defaults (metres): the judge's pads, finger depths past the first contact, width margin.
-DEFAULT_PAD_SIZE = 0.02
-DEFAULT_FINGER_DEPTH = 0.03
-DEFAULT_FRICTION = 0.5
-DEFAULT_WIDTH_MARGIN = 0.01
-DEFAULT_HYSTERESIS = 0.3
-DEFAULT_PREFERENCE = 0.1
-#: Finger depths tried, as fractions of the finger depth (the deepest is the finger depth).
-DEPTH_FRACTIONS: tuple[float, ...] = (1.0 / 3.0, 2.0 / 3.0, 1.0)
 #: Quality weights: friction-cone margin, pad support, finger clearance (they sum to 1).
 WEIGHT_MARGIN = 0.5
 WEIGHT_SUPPORT = 0.3
@@ -42,78 +31,6 @@ CLEARANCE_PADS = 0.5
 PATCH_CELLS = 0.6
 #: A pad's support: points within this many grid cells of its first touch.
 SUPPORT_CELLS = 1.5
-
-
-@dataclass(frozen=True)
-class RefinementSettings:
-    """
-    The settings of the refinement stage; off by default (the paper).
-
-    Read by the check here and by :func:`~mvbb_ros.geometry.refine.refine_grasps`.
-
-    :ivar enabled: refine and score the hypotheses on the points; off: the paper's hypotheses.
-    :ivar friction: Coulomb friction coefficient mu of the pads (the cone's half-angle is
-        atan(mu)).
-    :ivar pad_size: side of the square finger pads, along the approach and across it.
-    :ivar finger_depth: the deepest the fingertips go past the first contact; shallower depths
-        (:data:`DEPTH_FRACTIONS`) are tried too.
-    :ivar width_margin: added to the opening the object needs, for the published width.
-    :ivar hysteresis: the previous frame's top grasp stays on top while its score is within this
-        of the best new one.
-    :ivar preference: weight of the task strategy in the score (the rest is the quality).
-    :ivar depth_fractions: the finger depths tried, as fractions of `finger_depth`.
-    """
-
-    enabled: bool = False
-    friction: float = DEFAULT_FRICTION
-    pad_size: float = DEFAULT_PAD_SIZE
-    finger_depth: float = DEFAULT_FINGER_DEPTH
-    width_margin: float = DEFAULT_WIDTH_MARGIN
-    hysteresis: float = DEFAULT_HYSTERESIS
-    preference: float = DEFAULT_PREFERENCE
-    depth_fractions: tuple[float, ...] = DEPTH_FRACTIONS
-
-    def __post_init__(self) -> None:
-        for name in ('friction', 'width_margin', 'hysteresis'):
-            if not getattr(self, name) >= 0.0:
-                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
-        for name in ('pad_size', 'finger_depth'):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
-        if not self.depth_fractions or min(self.depth_fractions) <= 0.0:
-            raise ValueError(f'depth_fractions must be > 0, got {self.depth_fractions}')
-        if not 0.0 <= self.preference <= 1.0:
-            raise ValueError(f'preference must be in [0, 1], got {self.preference}')
-
-
-@dataclass(frozen=True)
-class GraspView:
-    """
-    What the refinement knows of the view and the gripper beyond its settings.
-
-    :ivar gripper_max_width: the gripper's opening.
-    :ivar standoff: pre-grasp distance before the first contact.
-    :ivar approach_axis: the gripper pose convention (``docs/grasp_rules.md``).
-    :ivar strategy: the task strategy whose preference reorders close scores.
-    :ivar up: unit up direction, or None.
-    :ivar viewpoint: (3,) the sensor position, or None when the points are no single view.
-    :ivar far_side: allow approaches from the far side of the object (seen from the viewpoint).
-    :ivar max_approach_elevation_deg: approaches rising more than this above the horizontal
-        are removed (with `up`).
-    :ivar support_clearance: the pads stay this far above the object's lowest point (with `up`).
-    :ivar max_grasps: at most this many grasps (0: all distinct ones).
-    """
-
-    gripper_max_width: float
-    standoff: float
-    approach_axis: ApproachAxis = 'z'
-    strategy: Strategy = 'largest'
-    up: FloatArray | None = None
-    viewpoint: FloatArray | None = None
-    far_side: bool = True
-    max_approach_elevation_deg: float = 45.0
-    support_clearance: float = 0.0
-    max_grasps: int = 0
 
 
 #: Columns of :func:`_evaluate`'s output.

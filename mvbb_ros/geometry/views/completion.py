@@ -44,15 +44,15 @@ from mvbb_ros.arrays import (
     read_only,
 )
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import minimum_bounding_box
-from mvbb_ros.geometry.raster import (
+from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
+from mvbb_ros.geometry.boxfit.rectangle import hull_2d_kernel
+from mvbb_ros.geometry.views.raster import (
     behind_others,
     MAX_RASTER_SIDE,
     pixel,
     view_raster,
     ViewRaster,
 )
-from mvbb_ros.geometry.rectangle import hull_2d_kernel
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike

@@ -14,8 +14,8 @@ as the edge turns, so all edges cost O(m) for a hull of m vertices.
   compared without square roots (the edge's squared length divides the product of the two spans).
 
 :func:`min_area_rectangle` is the typed wrapper for one planar cloud. The 3D box search
-(:mod:`mvbb_ros.geometry.search`) calls the kernels directly, on the projected silhouette of a
-hull, with work arrays it reuses.
+(:mod:`mvbb_ros.geometry.boxfit.search`) calls the kernels directly, on the projected silhouette of
+a hull, with work arrays it reuses.
 """
 
 from __future__ import annotations

@@ -1,16 +1,17 @@
 """
 The orientation search of the minimum-volume box fit, in compiled code (numba).
 
-:mod:`mvbb_ros.geometry.fit` brings a cloud to its PCA frame at unit size and hulls it
-(:mod:`mvbb_ros.geometry.hull`); this module finds the frame of the smallest box of that hull.
+:mod:`mvbb_ros.geometry.boxfit.fit` brings a cloud to its PCA frame at unit size and hulls it
+(:mod:`mvbb_ros.geometry.boxfit.hull`); this module finds the frame of the smallest box of that
+hull.
 
 * For a fixed axis ``a``, the best rotation of the box about ``a`` is the minimum-area rectangle of
-  the projection along ``a`` (:mod:`mvbb_ros.geometry.rectangle`, rotating calipers). The outline
-  of that projection is the hull's *silhouette*: the edges between facets facing along ``a`` and
-  the others, which form one loop. :func:`rotate_about` classes the facets, links the silhouette
-  edges into that loop, walks it (the outline in counter-clockwise order, no sort), keeps its
-  convex vertices in one Graham pass and runs the calipers on them. Should rounding break the
-  loop, the 2D hull of every projected hull vertex is used instead.
+  the projection along ``a`` (:mod:`mvbb_ros.geometry.boxfit.rectangle`, rotating calipers). The
+  outline of that projection is the hull's *silhouette*: the edges between facets facing along
+  ``a`` and the others, which form one loop. :func:`rotate_about` classes the facets, links the
+  silhouette edges into that loop, walks it (the outline in counter-clockwise order, no sort),
+  keeps its convex vertices in one Graham pass and runs the calipers on them. Should rounding break
+  the loop, the 2D hull of every projected hull vertex is used instead.
 * A minimal box has a face flush with a hull facet, or adjacent faces flush with hull edges
   (O'Rourke 1985). Candidate axes (:func:`candidate_axes_kernel`) are the PCA axes, the facet
   normals and the normals of planes through two of the longest hull edges, ranked by a lower
@@ -34,7 +35,12 @@ from __future__ import annotations
 
 import math
 
-from mvbb_ros.geometry.rectangle import calipers_kernel, hull_2d_kernel, sift_down, sort_xy_kernel
+from mvbb_ros.geometry.boxfit.rectangle import (
+    calipers_kernel,
+    hull_2d_kernel,
+    sift_down,
+    sort_xy_kernel,
+)
 import numba as nb
 import numpy as np
 
@@ -725,7 +731,7 @@ def search_kernel(
 
 def warm_up() -> None:
     """Run every kernel of this module once on a tiny hull (see :mod:`mvbb_ros.kernels`)."""
-    from mvbb_ros.geometry.hull import convex_hull
+    from mvbb_ros.geometry.boxfit.hull import convex_hull
 
     points = np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T * [0.9, 0.6, 0.3]
     found = convex_hull(points)

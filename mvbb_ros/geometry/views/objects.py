@@ -14,8 +14,8 @@ from __future__ import annotations
 import itertools
 
 from mvbb_ros.arrays import FloatArray, IndexArray
-from mvbb_ros.geometry.cells import cell_grid, cell_start, column_keys
-from mvbb_ros.geometry.raster import view_raster
+from mvbb_ros.geometry.views.cells import cell_grid, cell_start, column_keys
+from mvbb_ros.geometry.views.raster import view_raster
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
@@ -45,7 +45,7 @@ def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
     Label the Euclidean clusters of `points` at `tolerance` (labels 0 .. k-1, by first point).
 
     Points are binned in cubic cells one tolerance wide; each point is compared with the points
-    of its own cell and the 26 around it (:mod:`mvbb_ros.geometry.cells`), and
+    of its own cell and the 26 around it (:mod:`mvbb_ros.geometry.views.cells`), and
     pairs closer than the tolerance are joined in a union-find forest. O(N) for even clouds.
     """
     count = points.shape[0]

@@ -2,9 +2,10 @@
 Fit-and-split MVBB decomposition (paper Sec. III-B to III-D); no ROS import.
 
 :func:`decompose` fits the minimum-volume bounding box (MVBB) of a point cloud, then repeatedly
-cuts a box in two along its best face-parallel cut (:mod:`mvbb_ros.geometry.split`), fits an MVBB
-to each part and keeps the split when the volume gain Theta* (eq. 2) is below the gain threshold t.
-The result is a :class:`Decomposition`: the whole tree, the leaf boxes and which points each holds.
+cuts a box in two along its best face-parallel cut (:mod:`mvbb_ros.geometry.decomposition.split`),
+fits an MVBB to each part and keeps the split when the volume gain Theta* (eq. 2) is below the gain
+threshold t. The result is a :class:`Decomposition`: the whole tree, the leaf boxes and which
+points each holds.
 
 Known limit of the criterion (measured on the paper's GraspIt! mug, see
 ``benchmarks/decompose.py``): mesh vertices that lie on planar rings with empty layers between
@@ -23,9 +24,9 @@ import math
 from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import IndexArray
-from mvbb_ros.geometry import split as splitting
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
+from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
+from mvbb_ros.geometry.decomposition import split as splitting
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -113,8 +114,9 @@ class DecompositionNode:
     :ivar parent: index of the parent node, None for the root.
     :ivar children: indices of the child nodes, lower side of the cut first; empty unless the
         node was split. A child dropped as noise is listed too (its ``dropped`` is True).
-    :ivar cut: the cut that split this node (see :class:`mvbb_ros.geometry.split.Cut`), None when
-        it was not split. The cut that made a node is its parent's ``cut``.
+    :ivar cut: the cut that split this node (see
+        :class:`mvbb_ros.geometry.decomposition.split.Cut`), None when it was not split. The cut
+        that made a node is its parent's ``cut``.
     :ivar tested_cut: the best cut found and tested for this node (``cut`` when it was split,
         the refused one when it was not); None when no cut was tested.
     :ivar theta: split measure theta of ``tested_cut`` (dimensionless), or None.
@@ -495,8 +497,8 @@ def decompose(
 
     The defaults are the paper's algorithm. The root is the MVBB of all points. A box P is cut
     at the best of its six families of face-parallel grid cuts by the 2D split measure theta
-    (eq. 1, :mod:`mvbb_ros.geometry.split`); each part gets its own MVBB (C1 below the cut, C2
-    above); the split is kept when the volume gain
+    (eq. 1, :mod:`mvbb_ros.geometry.decomposition.split`); each part gets its own MVBB (C1 below
+    the cut, C2 above); the split is kept when the volume gain
 
         Theta* = (V(C1) + V(C2) + V(A minus P)) / (V(P) + V(A minus P))
 
@@ -536,14 +538,15 @@ def decompose(
     the same as with every fit made (the ``'gain'`` order and rescoring fit every split they
     rank).
 
-    Part fits: the root gets the full default search (:func:`mvbb_ros.geometry.fit.fit_box`,
-    hulled on its grid coreset from 16,384 points on: :data:`~mvbb_ros.geometry.fit.ROOT_SEARCH`),
-    each part the lighter :data:`mvbb_ros.geometry.fit.PART_SEARCH` (half the candidate axes and
-    starts, no grid rounds, parts of 1,000 points or more hulled on a grid coreset). Against
-    the full search on the shared scans and models (``benchmarks/decompose.py --parts``): part
-    volumes median 1.0000 x, 99th percentile 1.009 x; box counts move on 1 of 39 clouds at
-    t = 0.90, 2 at 0.94 and 22 at 0.98, where a part's volume a fraction of a percent off flips
-    decisions (``docs/performance.md``).
+    Part fits: the root gets the full default search (:func:`mvbb_ros.geometry.boxfit.fit.fit_box`,
+    hulled on its grid coreset from 16,384 points on:
+    :data:`~mvbb_ros.geometry.boxfit.fit.ROOT_SEARCH`), each part the lighter
+    :data:`mvbb_ros.geometry.boxfit.fit.PART_SEARCH` (half the candidate axes and starts, no grid
+    rounds, parts of 1,000 points or more hulled on a grid coreset). Against the full search on the
+    shared scans and models (``benchmarks/decompose.py --parts``): part volumes median 1.0000 x,
+    99th percentile 1.009 x; box counts move on 1 of 39 clouds at t = 0.90, 2 at 0.94 and 22 at
+    0.98, where a part's volume a fraction of a percent off flips decisions
+    (``docs/performance.md``).
 
     :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
         and volumes come out in those units. Every criterion is scale-free: theta and Theta*
@@ -565,7 +568,7 @@ def decompose(
         off noise does not add a leaf and is still allowed.
     :param seed: passed to every MVBB fit, so the same input and seed give the same result.
     :param grid_cells: grid cells per box axis for the cut positions (>= 2); see
-        :data:`mvbb_ros.geometry.split.DEFAULT_GRID_CELLS`.
+        :data:`mvbb_ros.geometry.decomposition.split.DEFAULT_GRID_CELLS`.
     :param order: ``'volume'`` (default), ``'gain'``, ``'breadth'`` or ``'depth'``; see Processing
         order.
     :param min_thickness: a floor on the thickness of the boxes a split may make, in the
