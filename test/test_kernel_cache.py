@@ -17,8 +17,8 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import REPO_ROOT
 from mvbb_ros import kernel_cache, kernels
+from support.data import REPO_ROOT
 
 PACKAGE = REPO_ROOT / 'mvbb_ros'
 
@@ -131,9 +131,9 @@ _ROUND_TRIP = """
 import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from shapes import l_shape_points
+from support.shapes import l_shape_points
 from mvbb_ros import kernels
-from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.evaluation.synthetic import segmented_object_cloud
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
 import importlib

@@ -20,9 +20,9 @@ import stat
 import subprocess
 import sys
 
-from conftest import REPO_ROOT
 from mvbb_ros import kernels
 import pytest
+from support.data import REPO_ROOT
 
 #: What the child prints: where the package came from, whether it could write there, the lines.
 CHILD = """
@@ -115,10 +115,10 @@ _PIPELINE_AFTER_WARM_UP = """
 import importlib, json, sys
 sys.path.insert(0, sys.argv[1])
 from mvbb_ros import kernels
-from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.evaluation.synthetic import segmented_object_cloud
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
-from shapes import l_shape_points
+from support.shapes import l_shape_points
 
 kernels.warm_up()
 def signatures():

@@ -7,9 +7,9 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ElementTree
 
-from conftest import REPO_ROOT
 from mvbb_ros.ros.messages import OUTPUT_TYPES
 import pytest
+from support.data import REPO_ROOT
 import yaml
 
 VENV_BIN = Path(sys.executable).parent

@@ -374,7 +374,7 @@ def _run_decompose(args: argparse.Namespace) -> int:
 
 def _run_offline_demo(args: argparse.Namespace, settings: PipelineSettings) -> int:
     # Deferred: the synthetic scenes are ray-cast with Open3D.
-    from mvbb_ros.cli.synthetic import segmented_object_cloud
+    from mvbb_ros.evaluation.synthetic import segmented_object_cloud
 
     points = segmented_object_cloud(args.object, seed=settings.decomposition.seed)
     print(f'demo: synthetic {args.object} seen by a virtual depth camera ({len(points)} points)')

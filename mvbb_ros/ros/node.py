@@ -477,12 +477,3 @@ class DecomposerNode(Node):
             )
         ]
         self._diagnostics_pub.publish(array)
-
-
-if __name__ == '__main__':
-    # `python -m mvbb_ros.ros.node` runs the `decomposer` executable, as it always has.
-    import sys
-
-    from mvbb_ros.ros.decomposer import main
-
-    sys.exit(main())
