@@ -18,6 +18,7 @@ import sys
 import textwrap
 
 from mvbb_ros import kernel_cache, kernels
+import pytest
 from support.data import REPO_ROOT
 
 PACKAGE = REPO_ROOT / 'mvbb_ros'
@@ -156,6 +157,7 @@ print(json.dumps({'answers': answers, 'hits': hits, 'misses': misses}))
 """
 
 
+@pytest.mark.slow  # compiles every kernel twice in fresh processes: minutes
 def test_cached_kernels_answer_as_freshly_compiled_ones(tmp_path):
     """
     A kernel loaded from numba's cache gives the answers it gave when compiled.

@@ -20,6 +20,8 @@ from mvbb_ros.pipeline.decode import CloudFormatError, read_xyz, read_xyz_grid
 import numpy as np
 import pytest
 from support.data import require_shared_data
+
+# In flake8-import-order's order (ruff's isort sorts INT8 before INT16).
 from support.pointcloud2 import (
     as_message,
     build_layout_case,
@@ -32,17 +34,17 @@ from support.pointcloud2 import (
     FLOAT32,
     FLOAT64,
     FLOAT_DATATYPES,
-    INT8,
     INT16,
     INT32,
+    INT8,
     LAYOUT_CASES,
     pack_fields,
     random_column,
     read_bag_clouds,
     STRUCT_SIZES,
-    UINT8,
     UINT16,
     UINT32,
+    UINT8,
 )
 
 ALL_DATATYPES = (INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64)

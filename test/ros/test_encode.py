@@ -15,6 +15,8 @@ from mvbb_ros.pipeline.decode import read_xyz, read_xyz_grid
 from mvbb_ros.ros.encode import create_cloud_xyz, to_rclpy_cloud, to_rosbags_cloud
 import numpy as np
 import pytest
+
+# In flake8-import-order's order (ruff's isort sorts INT8 before INT16).
 from support.pointcloud2 import (
     as_message,
     build_layout_case,
@@ -24,16 +26,16 @@ from support.pointcloud2 import (
     FLOAT32,
     FLOAT64,
     grid_indices,
-    INT8,
     INT16,
     INT32,
+    INT8,
     NUMPY_TYPES,
     random_column,
     STRUCT_FORMATS,
     typestore,
-    UINT8,
     UINT16,
     UINT32,
+    UINT8,
 )
 
 

@@ -18,7 +18,6 @@ from typing import Any
 
 from mvbb_ros.pipeline import decode
 import numpy as np
-
 from support.data import require_shared_data
 
 # PointField datatypes (taken through the module: ruff and flake8 sort INT8/INT16 differently).
