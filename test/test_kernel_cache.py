@@ -99,6 +99,7 @@ print(probe.__file__, result, sum(stats.cache_hits.values()), sum(stats.cache_mi
 """
 
 
+@pytest.mark.slow
 def test_an_edited_callee_in_another_file_recompiles_the_kernel(tmp_path):
     copy = tmp_path / 'mvbb_ros'
     shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns('__pycache__'))

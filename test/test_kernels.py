@@ -138,6 +138,7 @@ print(json.dumps({name: types for name, types in new.items() if types}))
 """
 
 
+@pytest.mark.slow
 def test_the_warm_up_compiles_what_the_pipeline_runs():
     """
     After :func:`kernels.warm_up` a cloud through the pipeline compiles nothing more.

@@ -11,6 +11,7 @@ robot without ROS; a module past 800 lines is reported as a warning.
 from __future__ import annotations
 
 import ast
+import functools
 import json
 from pathlib import Path
 import subprocess
@@ -73,6 +74,7 @@ def _import_in_fresh_interpreter(modules: list[str]) -> dict[str, dict[str, list
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_no_module_outside_ros_loads_rclpy_or_messages():
     report = _import_in_fresh_interpreter(OUTSIDE_ROS)
     loaded = {module: seen['ros'] for module, seen in report.items() if seen['ros']}
@@ -80,6 +82,7 @@ def test_no_module_outside_ros_loads_rclpy_or_messages():
     assert not loaded, f'{first} loaded {loaded[first]} (only mvbb_ros.ros may import ROS)'
 
 
+@pytest.mark.slow
 def test_the_geometry_loads_numpy_and_scipy_only():
     geometry = ['mvbb_ros', *[name for name in MODULES if name.startswith('mvbb_ros.geometry')]]
     report = _import_in_fresh_interpreter(geometry)
@@ -87,6 +90,7 @@ def test_the_geometry_loads_numpy_and_scipy_only():
         assert not seen['ros'] and not seen['heavy'], f'{module} loaded {seen}'
 
 
+@pytest.mark.slow
 def test_the_mvbb_command_and_the_settings_load_no_heavy_layer():
     """`mvbb --help` and reading the settings do not wait for Open3D, matplotlib or rclpy."""
     report = _import_in_fresh_interpreter(['mvbb_ros.pipeline.settings', 'mvbb_ros.cli.main'])
@@ -94,6 +98,7 @@ def test_the_mvbb_command_and_the_settings_load_no_heavy_layer():
         assert not seen['ros'] and not seen['heavy'], f'{module} loaded {seen}'
 
 
+@pytest.mark.slow
 def test_the_node_and_the_pipeline_load_no_heavy_layer():
     """Importing Open3D alone takes about 2 s: the node's start (3 s at most) must not pay it."""
     report = _import_in_fresh_interpreter(['mvbb_ros.pipeline.process', 'mvbb_ros.ros.node'])
@@ -209,6 +214,7 @@ def _imports(path: Path) -> list[tuple[str, bool]]:
     return found
 
 
+@functools.cache
 def _package_graph(*, module_level_only: bool) -> dict[str, set[str]]:
     """Return the package's import graph: each module and the package modules it imports."""
     graph: dict[str, set[str]] = {}

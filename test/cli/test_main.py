@@ -28,6 +28,7 @@ def cloud(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_reader_that_goes_away_ends_the_command_quietly(cloud):
     """`mvbb decompose FILE | head -0`: no traceback, the shell's code for SIGPIPE."""
     command = subprocess.Popen(
@@ -43,6 +44,7 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(cloud):
     assert errors == ''
 
 
+@pytest.mark.slow
 def test_the_same_command_with_a_reader_prints_the_report(cloud):
     result = subprocess.run(
         [str(MVBB), 'decompose', str(cloud)], capture_output=True, text=True, timeout=120
@@ -51,6 +53,7 @@ def test_the_same_command_with_a_reader_prints_the_report(cloud):
     assert 'grasp hypotheses' in result.stdout
 
 
+@pytest.mark.slow
 def test_version_is_the_package_version():
     """`mvbb --version` prints the version package.xml declares (setup.py must agree)."""
     manifest = ElementTree.parse(Path(__file__).resolve().parents[2] / 'package.xml')

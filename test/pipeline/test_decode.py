@@ -113,6 +113,7 @@ def as_buffer(data: bytes, kind: str) -> object:
     return padded[1:]  # a numpy view that starts at an odd address
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(clouds(), st.sampled_from(['bytes', 'array', 'numpy']))
 def test_property_matches_point_by_point_reference(cloud, kind):

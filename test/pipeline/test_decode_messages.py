@@ -416,6 +416,7 @@ def random_clouds(draw: st.DrawFn) -> SimpleNamespace:
     )
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(random_clouds())
 def test_property_random_headers_and_bytes_give_a_valid_result_or_our_error(cloud):

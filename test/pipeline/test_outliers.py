@@ -60,6 +60,7 @@ def assert_same_as_open3d(points: np.ndarray) -> None:
         np.testing.assert_array_equal(ours, open3d_kept(points, k, ratio), err_msg=f'{k} {ratio}')
 
 
+@pytest.mark.slow
 def test_real_scans_match_open3d():
     for path in scan_paths():
         for size in (0.005, 0.002):
@@ -75,6 +76,7 @@ def test_raw_scans_match_open3d():
         np.testing.assert_array_equal(ours, open3d_kept(points, 20, 2.0))
 
 
+@pytest.mark.slow
 def test_organized_frame_scenes_and_lidar_match_open3d():
     grid = organized_frame(300_000).reshape(-1, 3)
     clouds = [grid[np.isfinite(grid).all(axis=1)]]

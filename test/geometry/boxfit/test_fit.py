@@ -324,6 +324,7 @@ def _brute_force_turn(vertices, axis):
     return areas.min() * np.ptp(vertices @ axis)
 
 
+@pytest.mark.slow
 def test_best_rotation_about_an_axis_matches_a_fine_angle_scan():
     rng = np.random.default_rng(8)
     points = rng.normal(size=(300, 3)) * [2.0, 1.0, 0.5]
