@@ -29,6 +29,7 @@ def test_only_our_own_arguments_ask_for_help():
     assert not wants_help(['--ros-args', '-r', '__node:=--help'])
 
 
+@pytest.mark.slow  # a fresh process that loads the settings (and their kernels)
 def test_installed_decomposer_help_exits_zero():
     script = Path(sys.executable).parent / 'decomposer'
     if not script.exists():

@@ -183,8 +183,8 @@ def test_installed_decomposer_exits_zero_on_sigint(arguments, says_up_is_unknown
         assert started, 'the node did not start:\n' + ''.join(lines)
         process.send_signal(signal.SIGINT)
         rest, _ = process.communicate(timeout=30)
-        assert process.returncode == 0
         output = ''.join(lines) + rest
+        assert process.returncode == 0, output
         assert (output.count(UP_UNKNOWN_HINT) == 1) == says_up_is_unknown, output
     finally:
         if process.poll() is None:

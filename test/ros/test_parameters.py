@@ -208,6 +208,7 @@ def test_unknown_names_are_named_with_the_closest_and_the_known_ones():
         parse_assignments(['min_point:=3'])
 
 
+@pytest.mark.ros
 def test_misspelt_key_in_a_parameter_file_stops_the_node(tmp_path):
     params = tmp_path / 'typo.yaml'
     params.write_text(
