@@ -1,8 +1,7 @@
-"""The documents that describe the tree agree with it: README's layout, architecture.md's tables."""
+"""The documents that describe the tree agree with it: the README layout, architecture.md."""
 
 from __future__ import annotations
 
-from pathlib import Path
 import re
 
 from support.data import REPO_ROOT
