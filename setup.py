@@ -13,7 +13,7 @@ setup(
     package_data={package_name: ['py.typed']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
-        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name, ['package.xml', 'LICENSE']),
         (
             'share/' + package_name + '/config',
             glob('config/*.yaml') + glob('config/*.rviz') + glob('config/*.xml'),
@@ -27,6 +27,7 @@ setup(
     maintainer_email='mvbb_ros@example.com',
     description='Minimum-volume bounding box decomposition and grasp hypotheses for ROS 2.',
     license='Apache-2.0',
+    license_files=['LICENSE'],
     extras_require={'test': ['pytest', 'hypothesis']},
     entry_points={
         'console_scripts': [

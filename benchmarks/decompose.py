@@ -18,8 +18,8 @@ of ``--repeats`` runs, for the paper's algorithm (``default``) and for each opti
 ``volume`` (3D split measure) and ``rescore`` (the best ``RESCORE_CUTS`` cuts re-scored by real
 box fits). The scan table gives the counts and volume ratios on every cloud in
 ``scans/``. The header names the MVBB implementation used (first docstring line of
-``mvbb_ros/geometry/fit.py`` and a digest of it and of the kernel modules it calls into), because
-the box counts depend on it.
+``mvbb_ros/geometry/boxfit/fit.py`` and a digest of it and of the kernel modules it calls into),
+because the box counts depend on it.
 
 Targets (issue 17), checked at the end, exit status 1 when one is missed:
 
@@ -37,10 +37,10 @@ Units: the GraspIt! mug is in millimetres, the bunny and the scans in metres, Ho
 unitless. Nothing here is metric: theta and Theta* are ratios, the grid is relative to each box
 and ``min_points`` is a count; the volume ratio is dimensionless.
 
-``--parts`` compares the decomposition's part fits (:func:`mvbb_ros.geometry.fit.fit_part`, the
-lighter :data:`~mvbb_ros.geometry.fit.PART_SEARCH`) with the full default search on every
-scan and model cloud at t = 0.90/0.94/0.98: the volume of each part fit over the full search's
-box of the same points, and the whole decompositions' box counts and leaf volumes.
+``--parts`` compares the decomposition's part fits (:func:`mvbb_ros.geometry.boxfit.fit.fit_part`,
+the lighter :data:`~mvbb_ros.geometry.boxfit.fit.PART_SEARCH`) with the full default search on
+every scan and model cloud at t = 0.90/0.94/0.98: the volume of each part fit over the full
+search's box of the same points, and the whole decompositions' box counts and leaf volumes.
 
 Sweeps (how the defaults were chosen; see the report in the module docstrings):
 
@@ -62,9 +62,9 @@ import sys
 import time
 
 from mvbb_ros import kernel_cache
-from mvbb_ros.geometry import decomposition
-from mvbb_ros.geometry import fit as fit_module
-from mvbb_ros.geometry.decomposition import decompose
+from mvbb_ros.geometry.boxfit import fit as fit_module
+from mvbb_ros.geometry.decomposition import tree as decomposition
+from mvbb_ros.geometry.decomposition.tree import decompose
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -16,8 +16,8 @@ from pathlib import Path
 import sys
 import time
 
-from mvbb_ros.geometry.decomposition import decompose
-from mvbb_ros.geometry.grasps import grasp_filter_counts, grasp_hypotheses
+from mvbb_ros.geometry.decomposition.tree import decompose
+from mvbb_ros.geometry.grasping.hypotheses import grasp_filter_counts, grasp_hypotheses
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -3,9 +3,9 @@ Benchmark the minimum-volume bounding box against Open3D and trimesh, in one run
 
 For every ``.npy`` cloud under the shared data's ``models/`` and ``scans/`` folders, and for three
 generated solid clouds (a box, a sphere, an ellipsoid; 300k points each, rotated and moved off the
-origin), it prints, for ours (:func:`mvbb_ros.geometry.fit.minimum_bounding_box`), Open3D's PCA box
-(``get_oriented_bounding_box``), Open3D's minimal box (``get_minimal_oriented_bounding_box``) and
-``trimesh.bounds.oriented_bounds``:
+origin), it prints, for ours (:func:`mvbb_ros.geometry.boxfit.fit.minimum_bounding_box`), Open3D's
+PCA box (``get_oriented_bounding_box``), Open3D's minimal box
+(``get_minimal_oriented_bounding_box``) and ``trimesh.bounds.oriented_bounds``:
 
 * the volume divided by the best-known volume (``mvbb_reference.json``; for generated clouds the
   smallest enclosing box of this run, marked ``*``), and whether the box encloses every point
@@ -37,7 +37,7 @@ import sys
 import time
 
 from mvbb_ros.geometry.box import Box, right_handed
-from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
 import numpy as np
 import open3d as o3d
 from scipy.spatial import ConvexHull

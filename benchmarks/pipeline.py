@@ -24,11 +24,11 @@ or for the float32 -> float64 copy). ``ratio`` is our median total over the chai
 Frames:
 
 - ``camera 640x480``: a 640 x 480 organized frame from the package's virtual depth camera
-  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.cli.synthetic` scene), close enough
-  that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object are
-  NaN, as an organized segmentation delivers them. Four noise seeds.
-- ``organized 300k``: :func:`mvbb_ros.cli.synthetic.organized_frame` with 300 000 object points
-  (1214 x 910). Four noise seeds.
+  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.evaluation.synthetic` scene), close
+  enough that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object
+  are NaN, as an organized segmentation delivers them. Four noise seeds.
+- ``organized 300k``: :func:`mvbb_ros.evaluation.synthetic.organized_frame` with 300 000 object
+  points (1214 x 910). Four noise seeds.
 - every real scan in the shared ``scans`` folder and the Bunny's vertices, as float32 clouds;
 - every cloud in the shared bags, read with :class:`mvbb_ros.ros.bag.CloudBag` and deserialized
   into rclpy messages as the node receives them.
@@ -92,8 +92,7 @@ def camera_frame(seed: int, fill: float = 2.0):
     """
     import math
 
-    from mvbb_ros.cli import synthetic
-    from mvbb_ros.evaluation import camera
+    from mvbb_ros.evaluation import camera, synthetic
     import numpy as np
 
     scene = synthetic.place_objects(['mug'], [synthetic.pose_matrix()])
@@ -118,7 +117,7 @@ def organized_cloud(grid):
 
 def build_cases(quick: bool) -> list[tuple[str, list]]:
     """Return (name, [rclpy PointCloud2, ...]) for every case."""
-    from mvbb_ros.cli.synthetic import organized_frame
+    from mvbb_ros.evaluation.synthetic import organized_frame
     from mvbb_ros.ros.bag import CloudBag
     from mvbb_ros.ros.encode import create_cloud_xyz
     import numpy as np
@@ -161,7 +160,7 @@ class Bench:
     """The node's work for one cloud, step by step, and the Open3D reference chain."""
 
     def __init__(self, settings) -> None:
-        from mvbb_ros.geometry import decomposition
+        from mvbb_ros.geometry.decomposition import tree as decomposition
         from mvbb_ros.ros.messages import OUTPUT_TYPES
         import rclpy
 
@@ -290,7 +289,7 @@ def print_table(rows: list[tuple[str, dict]]) -> None:
 
 
 def scaling(bench: Bench, repeats: int, sizes) -> None:
-    from mvbb_ros.cli.synthetic import organized_frame
+    from mvbb_ros.evaluation.synthetic import organized_frame
     import numpy as np
 
     print('\n## Scaling with the number of object points (organized frames, ms)\n')

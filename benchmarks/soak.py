@@ -294,7 +294,7 @@ def main() -> int:
         os.environ[PROFILE_VARIABLE] = str(args.publisher_profile.resolve())
         node_environment.pop(PROFILE_VARIABLE, None)
 
-    from mvbb_ros.cli.synthetic import organized_frame
+    from mvbb_ros.evaluation.synthetic import organized_frame
     from mvbb_ros.ros.encode import create_cloud_xyz
     import rclpy
 

@@ -22,21 +22,21 @@ from typing import Any, TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mvbb_ros.geometry.box import Box
-    from mvbb_ros.geometry.decomposition import decompose, Decomposition
-    from mvbb_ros.geometry.fit import minimum_bounding_box
-    from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
+    from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
+    from mvbb_ros.geometry.decomposition.tree import decompose, Decomposition
+    from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
     from mvbb_ros.pipeline.process import process_points
     from mvbb_ros.pipeline.settings import PipelineSettings
 
 #: Each public name and the module that defines it, imported on first use.
 _EXPORTS: dict[str, str] = {
     'Box': 'mvbb_ros.geometry.box',
-    'Decomposition': 'mvbb_ros.geometry.decomposition',
-    'Grasp': 'mvbb_ros.geometry.grasps',
+    'Decomposition': 'mvbb_ros.geometry.decomposition.tree',
+    'Grasp': 'mvbb_ros.geometry.grasping.hypotheses',
     'PipelineSettings': 'mvbb_ros.pipeline.settings',
-    'decompose': 'mvbb_ros.geometry.decomposition',
-    'grasp_hypotheses': 'mvbb_ros.geometry.grasps',
-    'minimum_bounding_box': 'mvbb_ros.geometry.fit',
+    'decompose': 'mvbb_ros.geometry.decomposition.tree',
+    'grasp_hypotheses': 'mvbb_ros.geometry.grasping.hypotheses',
+    'minimum_bounding_box': 'mvbb_ros.geometry.boxfit.fit',
     'process_points': 'mvbb_ros.pipeline.process',
 }
 __all__ = [

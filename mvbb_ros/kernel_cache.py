@@ -65,7 +65,7 @@ def _imported_files(path: Path) -> tuple[Path, ...]:
     names = set(_PLAIN_IMPORT.findall(text))
     for module, imported in _FROM_IMPORT.findall(text):
         names.add(module)
-        # `from mvbb_ros.geometry import hull as hull_module`: the names may be modules.
+        # `from mvbb_ros.geometry.boxfit import hull as hull_module`: the names may be modules.
         for item in imported.strip('()').split(','):
             word = item.split(' as ')[0].strip()
             if word.isidentifier():

@@ -36,21 +36,21 @@ from numba.core.registry import CPUDispatcher
 #: Every module with numba kernels, each defining ``warm_up()``.
 KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.geometry.box',
-    'mvbb_ros.geometry.cells',
+    'mvbb_ros.geometry.views.cells',
     'mvbb_ros.pipeline.decode',
     'mvbb_ros.pipeline.filtering',
     'mvbb_ros.pipeline.outliers',
-    'mvbb_ros.geometry.rectangle',
-    'mvbb_ros.geometry.hull',
-    'mvbb_ros.geometry.search',
-    'mvbb_ros.geometry.fit',
-    'mvbb_ros.geometry.split',
-    'mvbb_ros.geometry.raster',
-    'mvbb_ros.geometry.completion',
-    'mvbb_ros.geometry.objects',
-    'mvbb_ros.geometry.surface',
-    'mvbb_ros.geometry.contacts',
-    'mvbb_ros.geometry.refine',
+    'mvbb_ros.geometry.boxfit.rectangle',
+    'mvbb_ros.geometry.boxfit.hull',
+    'mvbb_ros.geometry.boxfit.search',
+    'mvbb_ros.geometry.boxfit.fit',
+    'mvbb_ros.geometry.decomposition.split',
+    'mvbb_ros.geometry.views.raster',
+    'mvbb_ros.geometry.views.completion',
+    'mvbb_ros.geometry.views.objects',
+    'mvbb_ros.geometry.grasping.surface',
+    'mvbb_ros.geometry.grasping.contacts',
+    'mvbb_ros.geometry.grasping.refine',
 )
 
 

@@ -17,10 +17,10 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import REPO_ROOT
 from mvbb_ros import kernel_cache, kernels
 import pytest
-from test_kernels import read_only_command
+from support.data import REPO_ROOT
+from support.mounts import read_only_command
 
 PACKAGE = REPO_ROOT / 'mvbb_ros'
 
@@ -62,13 +62,14 @@ def test_the_stamp_covers_the_kernel_modules_a_module_imports():
                     waiting.append(file)
         return {file.stem for file in seen}
 
-    assert {'fit', 'search', 'hull', 'rectangle', 'box'} <= covered('fit')
-    assert 'fit' not in covered('hull')
-    assert {'raster', 'cells'} <= covered('objects')
-    assert {'raster', 'fit', 'hull'} <= covered('completion')
-    fit_file = (PACKAGE / 'geometry' / 'fit.py').resolve()
+    assert {'fit', 'search', 'hull', 'rectangle', 'box'} <= covered('boxfit/fit')
+    assert 'fit' not in covered('boxfit/hull')
+    assert {'raster', 'cells'} <= covered('views/objects')
+    assert {'raster', 'fit', 'hull'} <= covered('views/completion')
+    assert {'surface', 'cells', 'hypotheses', 'tree', 'split'} <= covered('grasping/contacts')
+    fit_file = (PACKAGE / 'geometry' / 'boxfit' / 'fit.py').resolve()
     assert kernel_cache.dependency_digest(fit_file) != kernel_cache.dependency_digest(
-        (PACKAGE / 'geometry' / 'hull.py').resolve()
+        (PACKAGE / 'geometry' / 'boxfit' / 'hull.py').resolve()
     )
 
 
@@ -99,6 +100,7 @@ print(probe.__file__, result, sum(stats.cache_hits.values()), sum(stats.cache_mi
 """
 
 
+@pytest.mark.slow
 def test_an_edited_callee_in_another_file_recompiles_the_kernel(tmp_path):
     copy = tmp_path / 'mvbb_ros'
     shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns('__pycache__'))
@@ -132,9 +134,9 @@ _ROUND_TRIP = """
 import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from shapes import l_shape_points
+from support.shapes import l_shape_points
 from mvbb_ros import kernels
-from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.evaluation.synthetic import segmented_object_cloud
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
 import importlib
@@ -157,6 +159,7 @@ print(json.dumps({'answers': answers, 'hits': hits, 'misses': misses}))
 """
 
 
+@pytest.mark.slow  # compiles every kernel twice in fresh processes: minutes
 def test_cached_kernels_answer_as_freshly_compiled_ones(tmp_path):
     """
     A kernel loaded from numba's cache gives the answers it gave when compiled.

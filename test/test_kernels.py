@@ -16,13 +16,13 @@ import os
 from pathlib import Path
 import re
 import shutil
-import stat
 import subprocess
 import sys
 
-from conftest import REPO_ROOT
 from mvbb_ros import kernels
 import pytest
+from support.data import REPO_ROOT
+from support.mounts import read_only_command
 
 #: What the child prints: where the package came from, whether it could write there, the lines.
 CHILD = """
@@ -37,20 +37,6 @@ folder = os.path.dirname(mvbb_ros.__file__)
 print(json.dumps({'package': folder, 'writable': os.access(folder, os.W_OK), 'lines': lines,
                   'compiled': len(report.compiled)}))
 """
-
-
-def read_only_command(folder: Path) -> list[str]:
-    """Return a command prefix under which `folder` is read-only (or make it so)."""
-    if os.geteuid() != 0:
-        for path in [folder, *folder.rglob('*')]:
-            path.chmod(path.stat().st_mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
-        return []
-    if shutil.which('unshare') is None:
-        pytest.skip('running as root without unshare: cannot make a read-only package')
-    if subprocess.run(['unshare', '-m', 'true'], capture_output=True, check=False).returncode:
-        pytest.skip('running as root without the right to make a mount namespace (unshare -m)')
-    mount = f'mount --bind {folder} {folder} && mount -o remount,ro,bind {folder} {folder}'
-    return ['unshare', '-m', 'sh', '-c', f'{mount} && exec "$0" "$@"']
 
 
 @pytest.mark.slow
@@ -118,10 +104,10 @@ _PIPELINE_AFTER_WARM_UP = """
 import importlib, json, sys
 sys.path.insert(0, sys.argv[1])
 from mvbb_ros import kernels
-from mvbb_ros.cli.synthetic import segmented_object_cloud
+from mvbb_ros.evaluation.synthetic import segmented_object_cloud
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
-from shapes import l_shape_points
+from support.shapes import l_shape_points
 
 kernels.warm_up()
 def signatures():
@@ -141,6 +127,7 @@ print(json.dumps({name: types for name, types in new.items() if types}))
 """
 
 
+@pytest.mark.slow
 def test_the_warm_up_compiles_what_the_pipeline_runs():
     """
     After :func:`kernels.warm_up` a cloud through the pipeline compiles nothing more.

@@ -10,8 +10,8 @@ from __future__ import annotations
 import ast
 import importlib.util
 
-from conftest import REPO_ROOT
 import pytest
+from support.data import REPO_ROOT
 
 LAUNCH_FILE = REPO_ROOT / 'launch' / 'decomposer.launch.py'
 ARGUMENTS = {'cloud_in', 'params_file', 'use_sim_time', 'rviz', 'fixed_frame'}

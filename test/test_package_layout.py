@@ -7,9 +7,9 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ElementTree
 
-from conftest import REPO_ROOT
 from mvbb_ros.ros.messages import OUTPUT_TYPES
 import pytest
+from support.data import REPO_ROOT
 import yaml
 
 VENV_BIN = Path(sys.executable).parent
@@ -126,6 +126,7 @@ def test_colcon_install_layout(colcon_install: Path):
         assert path.is_file(), f'{path} missing: ros2 run would not find it'
         assert os.access(path, os.X_OK), f'{path} is not executable'
     assert (prefix / 'share' / 'mvbb_ros' / 'package.xml').is_file()
+    assert (prefix / 'share' / 'mvbb_ros' / 'LICENSE').is_file()
     assert (
         prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'mvbb_ros'
     ).is_file()

@@ -1,11 +1,11 @@
 """The ROS 2 package template's docstring check (ament_pep257, 'ament' convention)."""
 
 from ament_pep257.main import main
-from conftest import REPO_ROOT
 import pytest
+from support.data import REPO_ROOT
 
 
-@pytest.mark.linter
+@pytest.mark.lint
 @pytest.mark.pep257
 def test_pep257(monkeypatch):
     monkeypatch.chdir(REPO_ROOT)

@@ -23,8 +23,8 @@ from mvbb_ros.cli.render import Panel, render_panels
 from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.evaluation.views import load_table_object, MODEL_BY_NAME, real_scans, single_views
 from mvbb_ros.geometry.box import Box, EDGES
-from mvbb_ros.geometry.decomposition import decompose
-from mvbb_ros.geometry.grasps import grasp_hypotheses
+from mvbb_ros.geometry.decomposition.tree import decompose
+from mvbb_ros.geometry.grasping.hypotheses import grasp_hypotheses
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np

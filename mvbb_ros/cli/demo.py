@@ -1,10 +1,11 @@
 """
 `mvbb demo`: the decomposer node on a replayed stream, end to end, on the project's own data.
 
-1. Write a small bag: a synthetic table-top scene (:func:`~mvbb_ros.cli.synthetic.make_scene`)
-   seen by a depth camera moving on an arc around it, with sensor noise
-   (:func:`~mvbb_ros.cli.synthetic.scene_views`); each frame keeps the points of the objects (the
-   table removed, as a table-top segmentation would) as one PointCloud2 at 5 Hz.
+1. Write a small bag: a synthetic table-top scene
+   (:func:`~mvbb_ros.evaluation.synthetic.make_scene`) seen by a depth camera moving on an arc
+   around it, with sensor noise (:func:`~mvbb_ros.evaluation.synthetic.scene_views`); each frame
+   keeps the points of the objects (the table removed, as a table-top segmentation would) as one
+   PointCloud2 at 5 Hz.
 2. Start the node (the ``decomposer`` executable, ``-r cloud_in:=/demo/segmented_objects``,
    ``input_depth:=50`` so that no frame is skipped: the input is reliable, as the player)
    as a subprocess.
@@ -37,8 +38,8 @@ from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.arrays import Float32Array
 from mvbb_ros.cli.render import Panel, render_panels
-from mvbb_ros.cli.synthetic import make_scene, scene_views
 from mvbb_ros.evaluation.camera import BACKGROUND
+from mvbb_ros.evaluation.synthetic import make_scene, scene_views
 from mvbb_ros.pipeline.decode import read_xyz
 from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping
 from mvbb_ros.pipeline.settings_text import format_assignment, parse_assignments

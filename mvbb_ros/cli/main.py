@@ -275,7 +275,7 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
     Return the JSON document of one cloud's result.
 
     ``objects``: per object its decomposition's own dict
-    (:meth:`~mvbb_ros.geometry.decomposition.Decomposition.to_dict`: the tree, the leaves by
+    (:meth:`~mvbb_ros.geometry.decomposition.tree.Decomposition.to_dict`: the tree, the leaves by
     node index, each box) with its index, observed point count, completion (and why it was
     skipped, or None) and mirror plane; ``leaves``: every leaf box in the order grasps number
     them (``box_index``), with its object, node and observed point count; then the grasps, the
@@ -375,7 +375,7 @@ def _run_decompose(args: argparse.Namespace) -> int:
 
 def _run_offline_demo(args: argparse.Namespace, settings: PipelineSettings) -> int:
     # Deferred: the synthetic scenes are ray-cast with Open3D.
-    from mvbb_ros.cli.synthetic import segmented_object_cloud
+    from mvbb_ros.evaluation.synthetic import segmented_object_cloud
 
     points = segmented_object_cloud(args.object, seed=settings.decomposition.seed)
     print(f'demo: synthetic {args.object} seen by a virtual depth camera ({len(points)} points)')

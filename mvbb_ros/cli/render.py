@@ -37,7 +37,7 @@ from matplotlib.text import Annotation
 from mvbb_ros.arrays import cross
 from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.geometry.box import EDGES
-from mvbb_ros.geometry.fit import minimum_bounding_box
+from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 

@@ -12,7 +12,8 @@ written out in ``docs/evaluation_protocol.md``; the results are in ``docs/grasp_
 Nothing here is taken from GraspIt! or other grasp libraries.
 
 :mod:`~mvbb_ros.evaluation.camera` is the virtual depth camera (pinhole ray casting with sensor
-noise) that the demo scenes and the single-view benchmark render with. The single-view ground
+noise) that the demo scenes (:mod:`~mvbb_ros.evaluation.synthetic`) and the single-view
+benchmark render with. The single-view ground
 truth (issues 15 and 16, ``benchmarks/views.py``, ``docs/single_views.md``):
 :mod:`~mvbb_ros.evaluation.views` (whole meshes on a table, their views, the real scans),
 :mod:`~mvbb_ros.evaluation.coverage` (boxes against the whole mesh) and

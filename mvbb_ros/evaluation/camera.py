@@ -4,7 +4,7 @@ A virtual depth camera: pinhole depth images of triangle meshes by ray casting, 
 Meshes are ray-cast from a pinhole camera (``open3d.t.geometry.RaycastingScene``), so a cloud is
 a single partial view with realistic sensor noise (:class:`DepthNoise`), like the cloud of an
 RGB-D camera. The command-line tools build their demo scenes on it
-(:mod:`mvbb_ros.cli.synthetic`); the single-view benchmark renders the shared meshes with it
+(:mod:`mvbb_ros.evaluation.synthetic`); the single-view benchmark renders the shared meshes with it
 (:mod:`mvbb_ros.evaluation.views`).
 
 Conventions:
@@ -172,8 +172,8 @@ class DepthCamera:
         Prepare the meshes for ray casting.
 
         :param meshes: labelled meshes (:class:`LabelledMeshes`, e.g. a
-            :class:`mvbb_ros.cli.synthetic.Scene`), one mesh (label 0) or a sequence of meshes
-            (labelled by index), all in the world frame.
+            :class:`mvbb_ros.evaluation.synthetic.Scene`), one mesh (label 0) or a sequence of
+            meshes (labelled by index), all in the world frame.
         :raises TypeError: when a mesh is not an Open3D ``TriangleMesh``.
         """
         self.scene = o3d.t.geometry.RaycastingScene()
@@ -359,9 +359,9 @@ def render_depth_cloud(
     Pixel (u, v) looks along ((u - cx) / fx, (v - cy) / fy, 1) in the camera frame (pixel
     centres at integer coordinates, as in OpenCV and ROS CameraInfo).
 
-    :param meshes: labelled meshes (a :class:`mvbb_ros.cli.synthetic.Scene`: objects labelled by
-        index, the table :data:`BACKGROUND`), one mesh (label 0) or a sequence of meshes
-        (labelled by index), all in the world frame (metres).
+    :param meshes: labelled meshes (a :class:`mvbb_ros.evaluation.synthetic.Scene`: objects
+        labelled by index, the table :data:`BACKGROUND`), one mesh (label 0) or a sequence of
+        meshes (labelled by index), all in the world frame (metres).
     :param camera_pose: (4, 4) T_world_camera of the optical frame (see :func:`look_at`).
     :param width: image width, pixels.
     :param height: image height, pixels.

@@ -2,9 +2,9 @@
 The Figure 6 experiment on one object: box-face grasps against the spherical baseline.
 
 :func:`compare_grasp_sets` scores, with one gripper and contact model, the spherical grasps, the
-24 grasps of the root box (:func:`~mvbb_ros.geometry.fit.minimum_bounding_box`) and the
-hypotheses (:func:`~mvbb_ros.geometry.grasps.grasp_hypotheses`) of decompositions
-(:func:`~mvbb_ros.geometry.decomposition.decompose`) at several gain thresholds, and tests the
+24 grasps of the root box (:func:`~mvbb_ros.geometry.boxfit.fit.minimum_bounding_box`) and the
+hypotheses (:func:`~mvbb_ros.geometry.grasping.hypotheses.grasp_hypotheses`) of decompositions
+(:func:`~mvbb_ros.geometry.decomposition.tree.decompose`) at several gain thresholds, and tests the
 paper's claim: the best box grasp reaches 90 % of the best spherical epsilon with at most 1 % of
 the candidates. The protocol is in ``docs/evaluation_protocol.md``;
 :mod:`mvbb_ros.evaluation.report` makes the table and the plot.
@@ -26,12 +26,12 @@ from mvbb_ros.evaluation.spherical import (
     spherical_grasps,
 )
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
-from mvbb_ros.geometry.contacts import GraspView, RefinementSettings
-from mvbb_ros.geometry.decomposition import decompose
-from mvbb_ros.geometry.fit import minimum_bounding_box
-from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.geometry.refine import refine_grasps
-from mvbb_ros.geometry.surface import surface_model
+from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
+from mvbb_ros.geometry.decomposition.tree import decompose
+from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
+from mvbb_ros.geometry.grasping.refine import refine_grasps
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
+from mvbb_ros.geometry.grasping.surface import surface_model
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
@@ -415,9 +415,9 @@ def refined_hypotheses(
     """
     Return the hypotheses refined on a whole object's points with this experiment's gripper.
 
-    :func:`~mvbb_ros.geometry.refine.refine_grasps` on the surface of `points` (cells of their
-    median neighbour spacing), with the simulator's hand: pads as wide as its fingers, closing
-    where it closes (half the finger depth past the palm's contact, less the retreat), the
+    :func:`~mvbb_ros.geometry.grasping.refine.refine_grasps` on the surface of `points` (cells of
+    their median neighbour spacing), with the simulator's hand: pads as wide as its fingers,
+    closing where it closes (half the finger depth past the palm's contact, less the retreat), the
     opening of the gripper, no support and no viewpoint (the points are the whole object).
 
     :param points: (N, 3) an even sample of the object's surface.

@@ -146,8 +146,8 @@ def judge_grasps(
 
     :param target: the whole object.
     :param grasps: grasp-like objects (``.position``, ``.approach``, ``.closing``, e.g.
-        :class:`mvbb_ros.geometry.grasps.Grasp`) or a ``(positions, approaches, closings)``
-        triple of (G, 3) arrays, in the mesh's frame.
+        :class:`mvbb_ros.geometry.grasping.hypotheses.Grasp`) or a ``(positions, approaches,
+        closings)`` triple of (G, 3) arrays, in the mesh's frame.
     :param gripper: the pad gripper.
     :param support: the support plane ``(up, height)``: points p with ``up . p >= height`` are
         above it; None for no support.

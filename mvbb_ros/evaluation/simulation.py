@@ -177,8 +177,8 @@ def evaluate_grasps(
 
     :param mesh: a :class:`GraspTarget` or anything :meth:`GraspTarget.from_mesh` accepts.
     :param grasps: a sequence of grasp-like objects (``.position``, ``.approach``,
-        ``.closing``, e.g. :class:`mvbb_ros.geometry.grasps.Grasp`), or a ``(positions, approaches,
-        closings)`` triple of (G, 3) arrays.
+        ``.closing``, e.g. :class:`mvbb_ros.geometry.grasping.hypotheses.Grasp`), or a
+        ``(positions, approaches, closings)`` triple of (G, 3) arrays.
     :param gripper: the gripper; default :meth:`ParallelJawGripper.for_object` of the mesh's
         diameter.
     :param friction: Coulomb friction coefficient mu (default 0.5).
@@ -315,7 +315,7 @@ def grasp_quality(
     :param mesh: a :class:`GraspTarget`, an Open3D triangle mesh, ``(vertices, triangles)``, or
         a mesh file path. Prepare a :class:`GraspTarget` once when scoring many grasps.
     :param grasp: an object with ``.position``, ``.approach`` and ``.closing`` (for example a
-        :class:`mvbb_ros.geometry.grasps.Grasp`), all in the mesh's frame and units.
+        :class:`mvbb_ros.geometry.grasping.hypotheses.Grasp`), all in the mesh's frame and units.
     :param gripper: the gripper; default :meth:`ParallelJawGripper.for_object` of the mesh's
         diameter, with `max_width` and `finger_depth` replacing its values when given.
     :param max_width: maximum opening (mesh units), when `gripper` is not given.

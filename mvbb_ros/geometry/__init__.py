@@ -1,13 +1,16 @@
 """
-Geometry: boxes, the minimum-volume box fit, fit-and-split, and grasp hypotheses.
+Geometry: boxes, the minimum-volume box fit, fit-and-split, single views and grasps.
 
-numpy, scipy and numba kernels only: no ROS, no Open3D, no files. The modules in pipeline
-order: :mod:`~mvbb_ros.geometry.box` (the value type), :mod:`~mvbb_ros.geometry.hull`,
-:mod:`~mvbb_ros.geometry.rectangle` and :mod:`~mvbb_ros.geometry.search` (the parts of)
-:mod:`~mvbb_ros.geometry.fit` (the minimum-volume box), :mod:`~mvbb_ros.geometry.split` (the
-split measure theta), :mod:`~mvbb_ros.geometry.decomposition` (the fit-and-split tree) and
-:mod:`~mvbb_ros.geometry.grasps` (face-approach grasps). Every default here is the paper's;
-``docs/architecture.md`` says where the node's defaults differ.
+numpy, scipy and numba kernels only: no ROS, no Open3D, no files. :mod:`~mvbb_ros.geometry.box`
+is the value type every part uses; the subsystems, each a subpackage, in pipeline order:
+
+* :mod:`~mvbb_ros.geometry.boxfit`: the minimum-volume box of a point set;
+* :mod:`~mvbb_ros.geometry.decomposition`: the split measure and the fit-and-split tree;
+* :mod:`~mvbb_ros.geometry.views`: objects in one cloud and the hidden side of a single view;
+* :mod:`~mvbb_ros.geometry.grasping`: face-approach grasps and their refinement on the points.
+
+Every default here is the paper's; ``docs/architecture.md`` says where the node's defaults
+differ.
 """
 
 # First: every numba kernel of the package is cached with the stamp kernel_cache.py gives it,

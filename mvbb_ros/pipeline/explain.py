@@ -4,15 +4,15 @@ Say why a pipeline result has boxes but no grasps: which grasp filter removed th
 `mvbb bag process` prints it in its note column and the node puts it in its diagnostics, so a
 cloud whose every face is occluded, too wide for the gripper or approached from below does not
 come back silently empty. The counts come from
-:func:`~mvbb_ros.geometry.grasps.grasp_filter_counts`, the filters in the order the grasp stage
-applies them. No ROS import.
+:func:`~mvbb_ros.geometry.grasping.hypotheses.grasp_filter_counts`, the filters in the order the
+grasp stage applies them. No ROS import.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict
 
-from mvbb_ros.geometry.grasps import grasp_filter_counts, GraspStats
+from mvbb_ros.geometry.grasping.hypotheses import grasp_filter_counts, GraspStats
 from mvbb_ros.pipeline.process import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
 

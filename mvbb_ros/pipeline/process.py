@@ -17,13 +17,13 @@ from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray, IndexArray
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.completion import complete_view, CompletedView
-from mvbb_ros.geometry.contacts import GraspView
-from mvbb_ros.geometry.decomposition import decompose, Decomposition
-from mvbb_ros.geometry.grasps import Grasp, grasp_hypotheses
-from mvbb_ros.geometry.objects import separate_objects
-from mvbb_ros.geometry.refine import refine_grasps, RefinedGrasps
-from mvbb_ros.geometry.surface import surface_model, SurfaceModel
+from mvbb_ros.geometry.decomposition.tree import decompose, Decomposition
+from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
+from mvbb_ros.geometry.grasping.refine import refine_grasps, RefinedGrasps
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView
+from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
+from mvbb_ros.geometry.views.completion import complete_view, CompletedView
+from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.settings import PipelineSettings
@@ -263,7 +263,7 @@ def process_points(
 
     capped = []
     if 0 < view.max_objects < len(groups):
-        left_out = sum(len(group) for group in groups[view.max_objects :])
+        left_out = sum(len(group) for group in groups[slice(view.max_objects, None)])
         capped.append(
             f'max_objects: kept the {view.max_objects} largest of {len(groups)} objects '
             f'({left_out} points left out)'

@@ -7,10 +7,12 @@ stage (the two stages of the pipeline layer are defined here, so that reading th
 not load Open3D, which the filters use):
 
 * ``filtering``: :class:`FilterSettings` (this module); its defaults filter nothing;
-* ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.DecompositionSettings`; the
+* ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.tree.DecompositionSettings`; the
   paper's defaults;
-* ``grasps``: :class:`~mvbb_ros.geometry.grasps.GraspSettings`; the library's defaults;
-* ``refinement``: :class:`~mvbb_ros.geometry.contacts.RefinementSettings`; off (the paper);
+* ``grasps``: :class:`~mvbb_ros.geometry.grasping.hypotheses.GraspSettings`; the library's
+  defaults;
+* ``refinement``: :class:`~mvbb_ros.geometry.grasping.refinement_settings.RefinementSettings`; off
+  (the paper);
 * ``node``: :class:`NodeSettings` (this module): what only the node uses.
 
 :data:`SPECS` lists every tunable the node exposes, once: its flat parameter name (the ROS
@@ -37,11 +39,11 @@ import math
 import typing
 from typing import Any, get_args, Literal
 
-from mvbb_ros.geometry.completion import Completion, COMPLETIONS
-from mvbb_ros.geometry.contacts import RefinementSettings
-from mvbb_ros.geometry.decomposition import DecompositionSettings
-from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
-from mvbb_ros.geometry.split import SPLIT_MEASURES
+from mvbb_ros.geometry.decomposition.split import SPLIT_MEASURES
+from mvbb_ros.geometry.decomposition.tree import DecompositionSettings
+from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
+from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
+from mvbb_ros.geometry.views.completion import Completion, COMPLETIONS
 
 #: What the range checks accept: (low, high) inclusive; None for no bound.
 Range = tuple[float | None, float | None]
@@ -95,9 +97,9 @@ class ViewSettings:
     :ivar up: up direction in the cloud's frame, or None when unknown: vertical mirror planes,
         a support below the object, and no grasps from below.
     :ivar cluster_tolerance: points closer than this (metres) are one object; 0 keeps the
-        whole cloud as one object (:func:`~mvbb_ros.geometry.objects.separate_objects`).
+        whole cloud as one object (:func:`~mvbb_ros.geometry.views.objects.separate_objects`).
     :ivar completion: how each object's hidden side is estimated
-        (:func:`~mvbb_ros.geometry.completion.complete_view`).
+        (:func:`~mvbb_ros.geometry.views.completion.complete_view`).
     :ivar max_objects: the largest objects of a frame that are decomposed and grasped; the
         others are left out and the result says so (0: all). With ``max_boxes`` it bounds the
         boxes, and so the grasps, of a whole frame.

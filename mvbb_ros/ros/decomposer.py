@@ -13,7 +13,8 @@ know the participant (measured in ``docs/performance.md``, start-up).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 import gc
 import sys
 
@@ -26,52 +27,103 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 #: underscore), without the command line's remappings and parameters, rosout or services.
 STARTUP_NODE = '_decomposer_startup'
 
+USAGE = """\
+usage: decomposer [-h] [--ros-args [-r cloud_in:=TOPIC] [-p NAME:=VALUE ...]
+                  [--params-file FILE] ...]
+
+The mvbb_ros node: segmented sensor_msgs/PointCloud2 on ~/cloud_in (remap it to your topic);
+minimum-volume box decomposition and grasp poses out on ~/boxes and ~/tree (MarkerArray),
+~/box_list and ~/grasp_candidates (PointCloud2), ~/grasps (PoseArray) and /diagnostics.
+SIGINT stops it with exit code 0; bad parameters give exit code 1.
+
+options:
+  -h, --help  show this message and the parameters, and exit (without joining the ROS graph)
+
+parameters (-p NAME:=VALUE; the node's defaults, as in config/decomposer.yaml):
+"""
+
+
+def wants_help(args: Sequence[str]) -> bool:
+    """Return whether `args` ask for help (``-h`` or ``--help`` before any ``--ros-args``)."""
+    ours = list(args)[: list(args).index('--ros-args')] if '--ros-args' in args else list(args)
+    return '-h' in ours or '--help' in ours
+
+
+def usage() -> str:
+    """Return the help text: what the node does, its topics and every parameter's default."""
+    from mvbb_ros.pipeline.settings import defaults, SPECS
+    from mvbb_ros.pipeline.settings_text import format_assignment
+
+    values = defaults()
+    lines = [f'  {format_assignment(spec.name, values[spec.name])}' for spec in SPECS]
+    return USAGE + '\n'.join(lines) + '\n'
+
+
+@contextmanager
+def ros_context(args: Sequence[str] | None) -> Iterator[None]:
+    """
+    Initialize rclpy with `args` for the block, and shut it down after it.
+
+    ``with rclpy.init(args=args):`` in the later ROS 2 releases; Jazzy's ``rclpy.init`` returns
+    None, so the same shape is spelled out here.
+    """
+    rclpy.init(args=None if args is None else list(args))
+    try:
+        yield
+    finally:
+        _shutdown()
+
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until SIGINT or shutdown; return 0 on a clean exit, 1 on bad parameters."""
     arguments = list(sys.argv if args is None else args)
+    if wants_help(arguments[1:] if args is None else arguments):
+        print(usage(), end='')
+        return 0
     try:
-        rclpy.init(args=arguments)
+        with ros_context(arguments):
+            return _run(arguments)
     except rclpy_implementation.RCLError as error:  # e.g. a parameter file that is not YAML
         print(f'decomposer: cannot start: {str(error).splitlines()[0]}', file=sys.stderr)
         return 2
-    node = None
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+
+
+def _run(arguments: Sequence[str]) -> int:
+    """Join the graph, load the node's module, and spin the node until it is stopped."""
+    startup = rclpy.create_node(
+        STARTUP_NODE,
+        use_global_arguments=False,
+        enable_rosout=False,
+        start_parameter_services=False,
+    )
+    from mvbb_ros.kernels import announce_cold_start
+
+    announce_cold_start(rclpy.logging.get_logger('decomposer').info)
+    from mvbb_ros.pipeline.settings_text import unmatched_params_files
+    from mvbb_ros.ros.node import DecomposerNode, NODE_NAME, UnknownParameterError
+
     try:
-        startup = rclpy.create_node(
-            STARTUP_NODE,
-            use_global_arguments=False,
-            enable_rosout=False,
-            start_parameter_services=False,
-        )
-        from mvbb_ros.kernels import announce_cold_start
-
-        announce_cold_start(rclpy.logging.get_logger('decomposer').info)
-        from mvbb_ros.pipeline.settings_text import unmatched_params_files
-        from mvbb_ros.ros.node import DecomposerNode, NODE_NAME, UnknownParameterError
-
-        try:
-            node = DecomposerNode()
-        except (
-            UnknownParameterError,
-            InvalidParameterValueException,
-            InvalidParameterTypeException,
-        ) as error:
-            rclpy.logging.get_logger(NODE_NAME).fatal(f'bad parameters: {error}')
-            return 1
-        finally:
-            startup.destroy_node()
-        for line in unmatched_params_files(arguments, node.get_fully_qualified_name()):
-            node.get_logger().warning(line)
+        node = DecomposerNode()
+    except (
+        UnknownParameterError,
+        InvalidParameterValueException,
+        InvalidParameterTypeException,
+    ) as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f'bad parameters: {error}')
+        return 1
+    finally:
+        startup.destroy_node()
+    for line in unmatched_params_files(arguments, node.get_fully_qualified_name()):
+        node.get_logger().warning(line)
+    try:
         # What start-up loaded (numba, scipy, rclpy: some 140k objects) stays for good; frozen,
         # the garbage collector's full passes skip it instead of walking it during a cloud.
         gc.freeze()
         rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
     finally:
-        if node is not None:
-            node.destroy_node()
-        _shutdown()
+        node.destroy_node()
     return 0
 
 

@@ -29,7 +29,7 @@ from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray
 from mvbb_ros.geometry.box import Box, box_quaternions, EDGES
-from mvbb_ros.geometry.grasps import Grasp
+from mvbb_ros.geometry.grasping.hypotheses import Grasp
 from mvbb_ros.pipeline.process import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.encode import create_cloud_xyz

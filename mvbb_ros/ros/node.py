@@ -362,7 +362,7 @@ class DecomposerNode(Node):
 
     @property
     def frames(self) -> FrameWorker:
-        """Return the worker that processes the frames (its skipped and merged counts)."""
+        """Return the worker of the frames, with its skipped and merged counts."""
         return self._worker
 
     def destroy_node(self) -> None:
@@ -513,12 +513,3 @@ class DecomposerNode(Node):
             )
         ]
         self._diagnostics_pub.publish(array)
-
-
-if __name__ == '__main__':
-    # `python -m mvbb_ros.ros.node` runs the `decomposer` executable, as it always has.
-    import sys
-
-    from mvbb_ros.ros.decomposer import main
-
-    sys.exit(main())

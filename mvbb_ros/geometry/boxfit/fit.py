@@ -1,0 +1,734 @@
+"""
+Minimum-volume oriented bounding box of a 3D point set, in compiled code (numba).
+
+Huebner et al. (ICRA 2008), Section III-A, fit every box with the approximation of Barequet and
+Har-Peled (2001): find good directions, search a small grid of directions around the best frame,
+improve the best box locally, and finally grow it to enclose every point. This module follows that
+scheme on the convex hull (the box of a point set is the box of its hull), with exact 2D steps:
+the orientation search (:mod:`mvbb_ros.geometry.boxfit.search`) turns candidate boxes to their best
+rotation about one axis (the minimum-area rectangle of the hull's silhouette, by rotating
+calipers, :mod:`mvbb_ros.geometry.boxfit.rectangle`), on candidate axes from hull facets and edge
+pairs (O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
+Har-Peled's grid of directions around the result. The final box is the smallest of the searched
+frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
+worse than either, and always enclosing.
+
+What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
+(all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
+
+1. Bounding box, PCA of an evenly spread sample of at most 4096 points, every point in the PCA
+   frame centred on the bounding box and scaled to unit size: O(N), three passes.
+2. Clouds of ``coreset_min`` points or more (default 65,536): Barequet and Har-Peled's grid
+   coreset (:func:`mvbb_ros.geometry.boxfit.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
+   points kept.
+3. Quickhull (:func:`mvbb_ros.geometry.boxfit.hull.quickhull_kernel`) on all points or the coreset:
+   O(N log H).
+4. The orientation search on the hull (:func:`mvbb_ros.geometry.boxfit.search.search_kernel`):
+   candidate ranking O(K (H + F)), then 60 to 120 axes at O(F + E + S) each for silhouettes of S
+   vertices.
+5. Enclose every point in each candidate frame: O(N).
+
+Degenerate clouds never reach the hull: the extents in the PCA frame give the affine rank (an
+extent below ``RANK_TOLERANCE`` of the largest is empty). One point or duplicates give a zero box,
+collinear points the PCA frame, coplanar points the plane's minimum-area rectangle. Clouds
+thinner than ``FLAT_SEARCH`` of their size are hulled too, but their hull's facets across the
+thickness are slivers that rounding can spoil, so the plane's rectangle, its normal polished to
+the thinnest direction on the 2D hulls of all points, is a candidate as well. Extents below
+``ZERO_EXTENT`` of the largest are reported as exactly 0.
+
+Compiled code: the kernels (names ending in ``_kernel``) are numba functions with ``cache=True``;
+the helpers they call are compiled into them and not cached on their own (fewer cache files, a
+quicker warm start). Kernels take C-contiguous float64 arrays and int64 knobs; their wrappers
+(:func:`fit_box`, :func:`minimum_bounding_box`) check and convert the input, so one
+specialisation per kernel is compiled and cached. A kernel's cache is refreshed when any module
+it calls into changes (:mod:`mvbb_ros.kernel_cache`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from mvbb_ros.arrays import FloatArray
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.boxfit import hull as hull_module
+from mvbb_ros.geometry.boxfit.rectangle import calipers_kernel, hull_2d_kernel
+from mvbb_ros.geometry.boxfit.search import (
+    copy_frame,
+    frame_volume,
+    new_work,
+    polish,
+    search_kernel,
+)
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike
+
+#: Relative extent (of the largest) below which a PCA direction counts as empty.
+RANK_TOLERANCE = 1e-10
+#: Relative PCA thickness below which the plane's rectangle is tried beside the hull search.
+FLAT_SEARCH = 1e-4
+#: Relative extent (of the largest) below which a box extent is reported as 0.
+ZERO_EXTENT = 1e-12
+#: Points of the evenly spread sample the PCA is computed on.
+PCA_SAMPLE = 4096
+#: Clouds of at least this many points are hulled on their grid coreset (``coreset_min``).
+CORESET_MIN_POINTS = 65536
+
+
+# Linear algebra -----------------------------------------------------------------------------
+
+
+@nb.njit
+def _symmetric_eigen(matrix: np.ndarray) -> np.ndarray:
+    """
+    Eigen-decompose a symmetric 3x3 matrix by cyclic Jacobi rotations.
+
+    :return: a right-handed rotation (3, 3) whose columns are unit eigenvectors, largest
+        eigenvalue first.
+    """
+    a = np.empty((3, 3))
+    v = np.zeros((3, 3))
+    for i in range(3):
+        v[i, i] = 1.0
+        for j in range(3):
+            a[i, j] = matrix[i, j]
+    for _ in range(64):
+        off = abs(a[0, 1]) + abs(a[0, 2]) + abs(a[1, 2])
+        diagonal = abs(a[0, 0]) + abs(a[1, 1]) + abs(a[2, 2])
+        if off == 0.0 or off <= 1e-18 * diagonal:
+            break
+        for pair in range(3):
+            p = 0 if pair < 2 else 1
+            q = 2 if pair > 0 else 1
+            if a[p, q] == 0.0:
+                continue
+            theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+            t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+            if theta < 0.0:
+                t = -t
+            c = 1.0 / math.sqrt(t * t + 1.0)
+            s = t * c
+            for k in range(3):
+                akp = a[k, p]
+                akq = a[k, q]
+                a[k, p] = c * akp - s * akq
+                a[k, q] = s * akp + c * akq
+            for k in range(3):
+                apk = a[p, k]
+                aqk = a[q, k]
+                a[p, k] = c * apk - s * aqk
+                a[q, k] = s * apk + c * aqk
+            for k in range(3):
+                vkp = v[k, p]
+                vkq = v[k, q]
+                v[k, p] = c * vkp - s * vkq
+                v[k, q] = s * vkp + c * vkq
+    # Columns by decreasing eigenvalue (a three-element sort).
+    order = np.arange(3)
+    for i in range(1, 3):
+        j = i
+        while j > 0 and a[order[j], order[j]] > a[order[j - 1], order[j - 1]]:
+            order[j], order[j - 1] = order[j - 1], order[j]
+            j -= 1
+    vectors = np.empty((3, 3))
+    for j in range(3):
+        for k in range(3):
+            vectors[k, j] = v[k, order[j]]
+    # Right-handed: the third column is the cross product of the first two.
+    vectors[0, 2] = vectors[1, 0] * vectors[2, 1] - vectors[2, 0] * vectors[1, 1]
+    vectors[1, 2] = vectors[2, 0] * vectors[0, 1] - vectors[0, 0] * vectors[2, 1]
+    vectors[2, 2] = vectors[0, 0] * vectors[1, 1] - vectors[1, 0] * vectors[0, 1]
+    return vectors
+
+
+@nb.njit
+def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return the 3x3 product a b (numba's @ needs BLAS through scipy)."""
+    out = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                out[i, j] += a[i, k] * b[k, j]
+    return out
+
+
+# The whole fit ---------------------------------------------------------------------------------
+
+
+@nb.njit
+def _planar_frame(local: np.ndarray, first: int, second: int) -> np.ndarray:
+    """
+    Return the frame of points flat across PCA axes `first` and `second`.
+
+    Its first two columns are the sides of the minimum-area rectangle of the points' coordinates
+    along those axes, the third their cross product (the plane's normal).
+    """
+    count = local.shape[0]
+    x = np.empty(count)
+    y = np.empty(count)
+    for i in range(count):
+        x[i] = local[i, first]
+        y[i] = local[i, second]
+    order = np.arange(count)
+    polygon = np.empty(count + 1, dtype=np.int64)
+    corners = hull_2d_kernel(x, y, order, count, polygon)
+    _, dx, dy = calipers_kernel(x, y, polygon, corners)
+    frame = np.zeros((3, 3))
+    frame[first, 0] = dx
+    frame[second, 0] = dy
+    frame[first, 1] = -dy
+    frame[second, 1] = dx
+    frame[0, 2] = frame[1, 0] * frame[2, 1] - frame[2, 0] * frame[1, 1]
+    frame[1, 2] = frame[2, 0] * frame[0, 1] - frame[0, 0] * frame[2, 1]
+    frame[2, 2] = frame[0, 0] * frame[1, 1] - frame[1, 0] * frame[0, 1]
+    return frame
+
+
+@nb.njit(cache=True)
+def fit_kernel(
+    points: np.ndarray,
+    seed: int,
+    sample_size: int,
+    grid_size: int,
+    candidates: int,
+    starts: int,
+    max_rounds: int,
+    exhaustive: int,
+    pair_edges: int,
+    coreset_cells: int,
+    coreset_min: int,
+    hull_tolerance: float,
+) -> tuple:
+    """
+    Fit the minimum-volume oriented box of finite points (see the module notes).
+
+    :param points: (N, 3) C-contiguous finite points, N >= 1.
+    :return: centre (3,), rotation (3, 3) whose columns are the box axes (right-handed) and full
+        extents (3,), in the units and frame of the points.
+    """
+    count = points.shape[0]
+    # Bounds in scalars (registers): the passes over every point are a third of a part fit.
+    low0 = high0 = points[0, 0]
+    low1 = high1 = points[0, 1]
+    low2 = high2 = points[0, 2]
+    for i in range(1, count):
+        low0 = min(low0, points[i, 0])
+        high0 = max(high0, points[i, 0])
+        low1 = min(low1, points[i, 1])
+        high1 = max(high1, points[i, 1])
+        low2 = min(low2, points[i, 2])
+        high2 = max(high2, points[i, 2])
+    low = np.array([low0, low1, low2])
+    high = np.array([high0, high1, high2])
+    origin = np.empty(3)
+    for k in range(3):
+        origin[k] = 0.5 * (low[k] + high[k])
+    scale = 0.5 * max(high[0] - low[0], high[1] - low[1], high[2] - low[2])
+    if not scale > 0.0:
+        return origin, np.eye(3), np.zeros(3)
+    # PCA of an evenly spread sample, relative to the bounding box centre, at unit scale
+    # (the reciprocal of a subnormal scale overflows: such clouds are first scaled up by a power
+    # of two, which is exact).
+    pre = 2.0**600 if scale < 1e-290 else 1.0
+    inverse = 1.0 / (scale * pre)
+    step = max(1, count // PCA_SAMPLE)
+    o0, o1, o2 = origin[0], origin[1], origin[2]
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    taken = 0
+    for i in range(0, count, step):
+        m0 += (points[i, 0] - o0) * pre * inverse
+        m1 += (points[i, 1] - o1) * pre * inverse
+        m2 += (points[i, 2] - o2) * pre * inverse
+        taken += 1
+    m0 /= taken
+    m1 /= taken
+    m2 /= taken
+    # The sums in scalars (registers), in the same order as an array's would be.
+    c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+    for i in range(0, count, step):
+        d0 = (points[i, 0] - o0) * pre * inverse - m0
+        d1 = (points[i, 1] - o1) * pre * inverse - m1
+        d2 = (points[i, 2] - o2) * pre * inverse - m2
+        c00 += d0 * d0
+        c01 += d0 * d1
+        c02 += d0 * d2
+        c11 += d1 * d1
+        c12 += d1 * d2
+        c22 += d2 * d2
+    covariance = np.empty((3, 3))
+    covariance[0, 0] = c00
+    covariance[0, 1] = covariance[1, 0] = c01
+    covariance[0, 2] = covariance[2, 0] = c02
+    covariance[1, 1] = c11
+    covariance[1, 2] = covariance[2, 1] = c12
+    covariance[2, 2] = c22
+    pca = _symmetric_eigen(covariance)
+    # Every point in the PCA frame, and its box there.
+    local = np.empty((count, 3))
+    p00, p01, p02 = pca[0, 0], pca[0, 1], pca[0, 2]
+    p10, p11, p12 = pca[1, 0], pca[1, 1], pca[1, 2]
+    p20, p21, p22 = pca[2, 0], pca[2, 1], pca[2, 2]
+    l0 = l1 = l2 = np.inf
+    h0 = h1 = h2 = -np.inf
+    for i in range(count):
+        d0 = (points[i, 0] - o0) * pre * inverse
+        d1 = (points[i, 1] - o1) * pre * inverse
+        d2 = (points[i, 2] - o2) * pre * inverse
+        v0 = d0 * p00 + d1 * p10 + d2 * p20
+        v1 = d0 * p01 + d1 * p11 + d2 * p21
+        v2 = d0 * p02 + d1 * p12 + d2 * p22
+        local[i, 0] = v0
+        local[i, 1] = v1
+        local[i, 2] = v2
+        l0, h0 = min(l0, v0), max(h0, v0)
+        l1, h1 = min(l1, v1), max(h1, v1)
+        l2, h2 = min(l2, v2), max(h2, v2)
+    local_low = np.array([l0, l1, l2])
+    local_high = np.array([h0, h1, h2])
+    spans = np.empty(3)
+    for k in range(3):
+        spans[k] = local_high[k] - local_low[k]
+    largest = max(spans[0], spans[1], spans[2])
+    rank = 0
+    widest = 0
+    narrowest = 0
+    for k in range(3):
+        if spans[k] > RANK_TOLERANCE * largest:
+            rank += 1
+        if spans[k] > spans[widest]:
+            widest = k
+        if spans[k] < spans[narrowest]:
+            narrowest = k
+    # The two widest PCA axes, for the planar frame.
+    middle_axis = 3 - widest - narrowest if widest != narrowest else (widest + 1) % 3
+    frames = np.zeros((2, 3, 3))
+    used = 0
+    if rank == 2:
+        copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
+        used += 1
+    elif rank == 3 and spans[narrowest] < FLAT_SEARCH * largest:
+        # So thin that the hull's facets across the thickness are slivers: the plane's minimum
+        # rectangle too, its normal tilted to the thinnest direction by the polish on the 2D
+        # hulls of every point (the PCA normal of a noisy slab is off by about thickness /
+        # sqrt(N)); the smaller box of this and the hull search wins.
+        planar = np.empty((1, 3, 3))
+        copy_frame(_planar_frame(local, widest, middle_axis), planar[0])
+        volume = np.array([frame_volume(local, planar[0])])
+        _, frame = polish(
+            local,
+            np.zeros((0, 3)),
+            np.zeros((0, 2), dtype=np.int64),
+            np.zeros((0, 2), dtype=np.int64),
+            new_work(count, 0),
+            planar,
+            volume,
+            max(max_rounds, 3),
+        )
+        copy_frame(frame, frames[used])
+        used += 1
+    if rank == 3:
+        if coreset_cells > 0 and count >= coreset_min:
+            kept = hull_module.column_extremes_kernel(local, local_low, local_high, coreset_cells)
+            searched = np.empty((kept.shape[0], 3))
+            for i in range(kept.shape[0]):
+                for k in range(3):
+                    searched[i, k] = local[kept[i], k]
+        else:
+            searched = local
+        status, hull_ids, _, normals, areas, edges, edge_facets = hull_module.quickhull_kernel(
+            searched, hull_tolerance
+        )
+        if status == hull_module.BROKEN:
+            # No hull: search every point with the PCA axes, the polish and the grid only.
+            _, frame = search_kernel(
+                searched,
+                np.zeros((0, 3)),
+                np.zeros(0),
+                np.zeros((0, 2), dtype=np.int64),
+                np.zeros((0, 2), dtype=np.int64),
+                seed,
+                candidates,
+                pair_edges,
+                sample_size,
+                exhaustive,
+                starts,
+                max_rounds,
+                grid_size,
+            )
+            copy_frame(frame, frames[used])
+            used += 1
+        elif status < 3:
+            if used == 0:
+                copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
+                used += 1
+        else:
+            vertices = np.empty((hull_ids.shape[0], 3))
+            for i in range(hull_ids.shape[0]):
+                for k in range(3):
+                    vertices[i, k] = searched[hull_ids[i], k]
+            _, frame = search_kernel(
+                vertices,
+                normals,
+                areas,
+                edges,
+                edge_facets,
+                seed,
+                candidates,
+                pair_edges,
+                sample_size,
+                exhaustive,
+                starts,
+                max_rounds,
+                grid_size,
+            )
+            copy_frame(frame, frames[used])
+            used += 1
+    return _final_box(local, origin, scale, pca, frames[:used], low, high, local_low, local_high)
+
+
+@nb.njit
+def _final_box(
+    local: np.ndarray,
+    origin: np.ndarray,
+    scale: float,
+    pca: np.ndarray,
+    frames: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    local_low: np.ndarray,
+    local_high: np.ndarray,
+) -> tuple:
+    """
+    Grow each frame's box around every point; return the smallest, or the PCA or axis-aligned box.
+
+    :param local: (N, 3) the points in the PCA frame, centred on `origin`, divided by `scale`.
+    :param frames: (K, 3, 3) searched frames in those coordinates.
+    :param low: (3,) the points' lower corner (world), ``high`` the upper one.
+    :param local_low: (3,) lower corner in the PCA frame, ``local_high`` the upper one.
+    :return: centre, rotation and extents, in world units.
+    """
+    count = frames.shape[0]
+    box_low = np.full((count, 3), np.inf)
+    box_high = np.full((count, 3), -np.inf)
+    for j in range(count):  # one frame at a time, its bounds in scalars (registers)
+        f00, f01, f02 = frames[j, 0, 0], frames[j, 0, 1], frames[j, 0, 2]
+        f10, f11, f12 = frames[j, 1, 0], frames[j, 1, 1], frames[j, 1, 2]
+        f20, f21, f22 = frames[j, 2, 0], frames[j, 2, 1], frames[j, 2, 2]
+        l0 = l1 = l2 = np.inf
+        h0 = h1 = h2 = -np.inf
+        for i in range(local.shape[0]):
+            x = local[i, 0]
+            y = local[i, 1]
+            z = local[i, 2]
+            v0 = x * f00 + y * f10 + z * f20
+            v1 = x * f01 + y * f11 + z * f21
+            v2 = x * f02 + y * f12 + z * f22
+            l0, h0 = min(l0, v0), max(h0, v0)
+            l1, h1 = min(l1, v1), max(h1, v1)
+            l2, h2 = min(l2, v2), max(h2, v2)
+        box_low[j, 0], box_low[j, 1], box_low[j, 2] = l0, l1, l2
+        box_high[j, 0], box_high[j, 1], box_high[j, 2] = h0, h1, h2
+    # Volumes compared at unit scale (world volumes of huge clouds overflow).
+    best = -1
+    volume = 1.0
+    aabb_volume = 1.0
+    for k in range(3):
+        volume *= local_high[k] - local_low[k]
+        aabb_volume *= (high[k] - low[k]) / scale
+    for j in range(count):
+        found = 1.0
+        for k in range(3):
+            found *= box_high[j, k] - box_low[j, k]
+        if found <= volume:
+            volume = found
+            best = j
+    extents = np.empty(3)
+    center = np.empty(3)
+    if aabb_volume < volume:
+        rotation = np.eye(3)
+        for k in range(3):
+            extents[k] = high[k] - low[k]
+            center[k] = origin[k]
+    else:
+        side_low = np.empty(3)
+        side_high = np.empty(3)
+        if best < 0:
+            rotation = pca.copy()
+            for k in range(3):
+                side_low[k] = local_low[k]
+                side_high[k] = local_high[k]
+        else:
+            rotation = _matmul(pca, frames[best])
+            for k in range(3):
+                side_low[k] = box_low[best, k]
+                side_high[k] = box_high[best, k]
+        for k in range(3):
+            extents[k] = (side_high[k] - side_low[k]) * scale
+        for j in range(3):
+            offset = 0.0
+            for k in range(3):
+                offset += rotation[j, k] * 0.5 * (side_low[k] + side_high[k])
+            center[j] = origin[j] + scale * offset
+    biggest = max(extents[0], extents[1], extents[2])
+    for k in range(3):
+        if extents[k] <= ZERO_EXTENT * biggest:
+            extents[k] = 0.0
+    return center, rotation, extents
+
+
+# Python API ------------------------------------------------------------------------------------
+
+
+def _as_points(points: ArrayLike) -> FloatArray:
+    """Return `points` as a C-contiguous float (N, 3) array, or raise ValueError saying why."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.shape == (3,):
+        pts = pts.reshape(1, 3)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'minimum_bounding_box needs points of shape (N, 3), got {pts.shape}')
+    if len(pts) == 0:
+        raise ValueError('minimum_bounding_box needs at least one point, got an empty array')
+    if not np.isfinite(pts).all():
+        bad = np.count_nonzero(~np.isfinite(pts).all(axis=1))
+        raise ValueError(
+            f'minimum_bounding_box got {bad} of {len(pts)} points with non-finite coordinates '
+            '(NaN or inf); drop them first'
+        )
+    return np.ascontiguousarray(pts)
+
+
+def _check_knob(name: str, value: object, low: int) -> int:
+    """Return `value` as an int; raise ValueError unless it is an integer (not a bool) >= `low`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f'{name} must be an integer >= {low}, got {value!r}')
+    return int(value)
+
+
+def fit_box(
+    points: ArrayLike,
+    *,
+    seed: int = 0,
+    sample_size: int = 200,
+    grid_size: int = 1,
+    candidates: int = 32,
+    starts: int = 8,
+    max_rounds: int = 3,
+    exhaustive: int = 32,
+    pair_edges: int = 12,
+    coreset_cells: int = 32,
+    coreset_min: int = CORESET_MIN_POINTS,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """
+    Return the minimum-volume oriented box enclosing `points` as plain arrays.
+
+    The box always encloses every point (to 1e-9 of its size) and has a right-handed rotation;
+    the result is deterministic for a given seed. Degenerate clouds give zero extents where the
+    data has none (see the module notes). The knobs' defaults were chosen on the shared reference
+    clouds (volume within 1 % of the best known) and on children-like clouds (cost).
+
+    :param points: (N, 3) points (a single (3,) point is accepted), N >= 1, finite.
+    :param seed: seed of the random sample of hull vertices used to rank candidate axes.
+    :param sample_size: hull vertices sampled to measure widths in the ranking bound (the paper
+        samples 200 points); the rotations and the polish always use the whole hull.
+    :param grid_size: half-width of Barequet and Har-Peled's grid of directions searched around
+        the best polished frame (13 directions for 1, 49 for 2; 0 turns the grid off; the paper
+        uses 3).
+    :param candidates: facet normals (ranked by the volume bound), and half as many edge-pair
+        normals, whose best box is computed.
+    :param starts: best candidate boxes polished by alternating rotating calipers, halved every
+        round.
+    :param max_rounds: most polishing rounds, and most grid searches.
+    :param exhaustive: hulls with at most this many facets try every distinct facet normal
+        without ranking.
+    :param pair_edges: longest hull edges whose pairs give candidate axes.
+    :param coreset_cells: columns per side of the grid coreset for large clouds (0: never).
+    :param coreset_min: clouds of at least this many points are hulled on their grid coreset;
+        smaller ones on all points (the coreset costs up to 1 % of volume on the bunny scans).
+    :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
+        the units and frame of the points.
+    :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
+    """
+    knobs = _knobs(
+        seed=seed,
+        sample_size=sample_size,
+        grid_size=grid_size,
+        candidates=candidates,
+        starts=starts,
+        max_rounds=max_rounds,
+        exhaustive=exhaustive,
+        pair_edges=pair_edges,
+        coreset_cells=coreset_cells,
+        coreset_min=coreset_min,
+    )
+    return _run(_as_points(points), knobs)
+
+
+class _Knobs(NamedTuple):
+    """The knobs of :func:`fit_box`, checked, in the kernel's order."""
+
+    seed: int
+    sample_size: int
+    grid_size: int
+    candidates: int
+    starts: int
+    max_rounds: int
+    exhaustive: int
+    pair_edges: int
+    coreset_cells: int
+    coreset_min: int
+
+
+def _knobs(
+    *,
+    seed: int,
+    sample_size: int,
+    grid_size: int,
+    candidates: int,
+    starts: int,
+    max_rounds: int,
+    exhaustive: int,
+    pair_edges: int,
+    coreset_cells: int,
+    coreset_min: int,
+) -> _Knobs:
+    """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
+    return _Knobs(
+        _check_knob('seed', seed, 0) & (2**63 - 1),
+        _check_knob('sample_size', sample_size, 1),
+        _check_knob('grid_size', grid_size, 0),
+        _check_knob('candidates', candidates, 1),
+        _check_knob('starts', starts, 1),
+        _check_knob('max_rounds', max_rounds, 0),
+        _check_knob('exhaustive', exhaustive, 0),
+        _check_knob('pair_edges', pair_edges, 0),
+        _check_knob('coreset_cells', coreset_cells, 0),
+        _check_knob('coreset_min', coreset_min, 0),
+    )
+
+
+def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Run :func:`fit_kernel` on checked points and knobs."""
+    return fit_kernel(
+        points,
+        knobs.seed,
+        knobs.sample_size,
+        knobs.grid_size,
+        knobs.candidates,
+        knobs.starts,
+        knobs.max_rounds,
+        knobs.exhaustive,
+        knobs.pair_edges,
+        knobs.coreset_cells,
+        knobs.coreset_min,
+        hull_module.HULL_TOLERANCE,
+    )
+
+
+#: The default knobs (from :func:`fit_box`'s signature).
+_DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
+#: The knobs of a decomposition's part fits: half the candidate axes and starts, no grid rounds,
+#: and parts of 1,000 points or more hulled on a 14 x 14 grid coreset (the hull was the largest
+#: share of a part fit). Measured with ``benchmarks/decompose.py --parts`` against the default
+#: search on the 3,218 part fits of the shared scans and models at t = 0.90/0.94/0.98: volume
+#: median 1.0000 x, mean 1.0006 x, 99th percentile 1.009 x, worst 1.044 x (16 x 16 cells: 1.0006,
+#: 1.010, 1.044; 12 x 12: 1.0008, 1.011, 1.044 but Homer's count at t = 0.98 goes from 8 to 14).
+#: Timings: ``docs/performance.md``.
+PART_SEARCH: dict[str, int] = {
+    'candidates': 16,
+    'starts': 4,
+    'grid_size': 0,
+    'coreset_cells': 14,
+    'coreset_min': 1000,
+}
+_PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
+#: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
+#: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
+#: the 11 shared clouds of 16,384 points or more the root volume is median 1.0002 x, at most 1.0068
+#: x the full hull's (``docs/performance.md``).
+ROOT_SEARCH: dict[str, int] = {'coreset_min': 16384}
+
+
+def fit_part(points: FloatArray, *, seed: int = 0) -> Box:
+    """
+    Return the minimum-volume box of a decomposition's part: :data:`PART_SEARCH`, no checks.
+
+    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` and without its checks
+    and conversions, for points known to be valid (the parts the decomposition cuts).
+
+    :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
+    :param seed: an integer >= 0 (not checked).
+    :return: the box.
+    """
+    knobs = _PART_KNOBS._replace(seed=seed & (2**63 - 1))
+    return Box.trusted(*_run(points, knobs))
+
+
+def minimum_bounding_box(
+    points: ArrayLike,
+    *,
+    seed: int = 0,
+    sample_size: int = 200,
+    grid_size: int = 1,
+    candidates: int = 32,
+    starts: int = 8,
+    max_rounds: int = 3,
+    exhaustive: int = 32,
+    pair_edges: int = 12,
+    coreset_cells: int = 32,
+    coreset_min: int = CORESET_MIN_POINTS,
+) -> Box:
+    """
+    Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
+
+    :func:`fit_box` as a :class:`~mvbb_ros.geometry.box.Box` (same knobs). The box always
+    encloses every point (to 1e-9 of its size) and has a right-handed rotation; the result is
+    deterministic for a given seed. Degenerate clouds never fail: one point or duplicates give a
+    zero-size box, collinear points a box with extents (length, 0, 0), coplanar points the
+    plane's minimum-area rectangle with zero thickness. Coordinates are centred and scaled
+    internally, so clouds far from the origin, huge or tiny keep their precision. On the shared
+    reference clouds the volume is within 0.4 % of the best known (``benchmarks/mvbb.py``).
+
+    :param points: (N, 3) points (a single (3,) point is accepted), N >= 1, finite.
+    :param seed: seed of the random sample of hull vertices used to rank candidate axes.
+    :param sample_size: see :func:`fit_box`.
+    :param grid_size: see :func:`fit_box`.
+    :param candidates: see :func:`fit_box`.
+    :param starts: see :func:`fit_box`.
+    :param max_rounds: see :func:`fit_box`.
+    :param exhaustive: see :func:`fit_box`.
+    :param pair_edges: see :func:`fit_box`.
+    :param coreset_cells: see :func:`fit_box`.
+    :param coreset_min: see :func:`fit_box`.
+    :return: the box, in the units and frame of the points.
+    :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
+    """
+    center, rotation, extents = fit_box(
+        points,
+        seed=seed,
+        sample_size=sample_size,
+        grid_size=grid_size,
+        candidates=candidates,
+        starts=starts,
+        max_rounds=max_rounds,
+        exhaustive=exhaustive,
+        pair_edges=pair_edges,
+        coreset_cells=coreset_cells,
+        coreset_min=coreset_min,
+    )
+    # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
+    return Box.trusted(center, rotation, extents)
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once on tiny clouds (see :mod:`mvbb_ros.kernels`)."""
+    rng = np.random.default_rng(0)
+    for points in (rng.normal(size=(30, 3)), rng.normal(size=(2, 3)), np.zeros((1, 3))):
+        fit_box(points)
+    fit_box(rng.normal(size=(200, 3)), coreset_min=100)
+    # The decomposition passes read-only points (numba compiles those apart): warm them too.
+    frozen = rng.normal(size=(30, 3))
+    frozen.flags.writeable = False
+    fit_box(frozen)

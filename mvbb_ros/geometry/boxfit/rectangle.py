@@ -1,0 +1,333 @@
+"""
+Minimum-area enclosing rectangle of planar points, in compiled code.
+
+Freeman and Shapira (1975): a minimum-area enclosing rectangle has one side collinear with an edge
+of the convex hull. Rotating calipers (Toussaint 1983) visit the hull edges counter-clockwise and
+move three supporting vertices (farthest along the edge, farthest from it, farthest back) forward
+as the edge turns, so all edges cost O(m) for a hull of m vertices.
+
+* :func:`hull_2d_kernel`: Andrew's monotone chain (sort by x then y, two sweeps that keep left
+  turns only), after an Akl-Toussaint throw-away of the points strictly inside the octagon of the
+  extremes along eight directions when there are many. Duplicates and collinear points never
+  break it: they are dropped.
+* :func:`calipers_kernel`: the rotating calipers on a counter-clockwise convex polygon. Areas are
+  compared without square roots (the edge's squared length divides the product of the two spans).
+
+:func:`min_area_rectangle` is the typed wrapper for one planar cloud. The 3D box search
+(:mod:`mvbb_ros.geometry.boxfit.search`) calls the kernels directly, on the projected silhouette of
+a hull, with work arrays it reuses.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from mvbb_ros.arrays import column_max, column_min, FloatArray
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike
+
+#: Points above which the octagon throw-away runs before the sort.
+CULL_MIN_POINTS = 64
+#: Point counts up to which an insertion sort beats the library sort.
+_INSERTION_SORT_MAX = 40
+
+
+class Rectangle(NamedTuple):
+    """
+    An oriented rectangle in the plane.
+
+    :param center: (2,) centre.
+    :param axes: (2, 2) rotation (det +1); column k is the unit direction of side k.
+    :param extents: (2,) full side lengths along the two axes (>= 0).
+    """
+
+    center: FloatArray
+    axes: FloatArray
+    extents: FloatArray
+
+    @property
+    def area(self) -> float:
+        """Area (product of the extents), in squared units of the points."""
+        return float(self.extents[0] * self.extents[1])
+
+    def corners(self) -> FloatArray:
+        """Return the corner points, counter-clockwise, as a (4, 2) array."""
+        signs = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+        return self.center + (signs * self.extents / 2.0) @ self.axes.T
+
+
+@nb.njit
+def _before(x: np.ndarray, y: np.ndarray, i: int, j: int) -> bool:
+    """Tell whether point i comes before point j in (x, y) order."""
+    return x[i] < x[j] or (x[i] == x[j] and y[i] < y[j])
+
+
+@nb.njit(cache=True)
+def sort_xy_kernel(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) -> None:
+    """
+    Sort ``order[:count]`` (indices into x, y) by x, then y.
+
+    Insertion sort for a few points, heapsort beyond (O(n log n) whatever the input, and far
+    quicker to compile than numba's own sorts).
+    """
+    if count <= _INSERTION_SORT_MAX:
+        for i in range(1, count):
+            item = order[i]
+            j = i - 1
+            while j >= 0 and _before(x, y, item, order[j]):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = item
+        return
+    # Heapsort: build a max-heap, then move the largest to the end, count times.
+    for start in range(count // 2 - 1, -1, -1):
+        sift_down(x, y, order, start, count)
+    for end in range(count - 1, 0, -1):
+        order[0], order[end] = order[end], order[0]
+        sift_down(x, y, order, 0, end)
+
+
+@nb.njit
+def sift_down(x: np.ndarray, y: np.ndarray, order: np.ndarray, root: int, end: int) -> None:
+    """Restore the max-heap order, by (x, y), of the indices ``order[root:end]`` below `root`."""
+    while True:
+        child = 2 * root + 1
+        if child >= end:
+            return
+        if child + 1 < end and _before(x, y, order[child], order[child + 1]):
+            child += 1
+        if not _before(x, y, order[root], order[child]):
+            return
+        order[root], order[child] = order[child], order[root]
+        root = child
+
+
+@nb.njit
+def _turn(x: np.ndarray, y: np.ndarray, o: int, a: int, b: int) -> float:
+    """Cross product (a - o) x (b - o): positive for a left turn o -> a -> b."""
+    return (x[a] - x[o]) * (y[b] - y[o]) - (y[a] - y[o]) * (x[b] - x[o])
+
+
+@nb.njit
+def _octagon_cull(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) -> int:
+    """
+    Drop from ``order[:count]`` the points strictly inside the octagon of eight extremes.
+
+    :return: how many indices are left at the front of `order`.
+    """
+    extreme = np.zeros(8, dtype=np.int64)
+    best = np.full(8, -np.inf)
+    for s in range(count):
+        i = order[s]
+        xi = x[i]
+        yi = y[i]
+        # Directions counter-clockwise: (1,0), (1,1), (0,1), (-1,1), (-1,0), (-1,-1), ...
+        values = (xi, xi + yi, yi, yi - xi, -xi, -xi - yi, -yi, xi - yi)
+        for k in range(8):
+            if values[k] > best[k]:
+                best[k] = values[k]
+                extreme[k] = i
+    kept = 0
+    for s in range(count):
+        i = order[s]
+        inside = True
+        for k in range(8):
+            a = extreme[k]
+            b = extreme[(k + 1) % 8]
+            if a == b:
+                continue
+            if _turn(x, y, a, b, i) <= 0.0:
+                inside = False
+                break
+        if not inside:
+            order[kept] = i
+            kept += 1
+    return kept
+
+
+@nb.njit(cache=True)
+def hull_2d_kernel(
+    x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int, out: np.ndarray
+) -> int:
+    """
+    Find the convex hull of planar points, counter-clockwise, without collinear vertices.
+
+    :param x: x coordinates.
+    :param y: y coordinates.
+    :param order: the indices of the points to use in ``order[:count]`` (reordered in place).
+    :param count: how many.
+    :param out: room for ``count + 1`` indices; receives the hull's vertex indices.
+    :return: the number m of hull vertices in ``out[:m]`` (1 for coincident points, 2 for
+        collinear ones).
+    """
+    if count > CULL_MIN_POINTS:
+        count = _octagon_cull(x, y, order, count)
+    sort_xy_kernel(x, y, order, count)
+    size = 0
+    for s in range(count):
+        i = order[s]
+        while size >= 2 and _turn(x, y, out[size - 2], out[size - 1], i) <= 0.0:
+            size -= 1
+        out[size] = i
+        size += 1
+    lower = size + 1
+    for s in range(count - 2, -1, -1):
+        i = order[s]
+        while size >= lower and _turn(x, y, out[size - 2], out[size - 1], i) <= 0.0:
+            size -= 1
+        out[size] = i
+        size += 1
+    # The last point repeats the first; a single distinct point stays once.
+    size = max(size - 1, 1)
+    if size == 2 and x[out[0]] == x[out[1]] and y[out[0]] == y[out[1]]:
+        size = 1
+    return size
+
+
+@nb.njit(cache=True)
+def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int) -> tuple:
+    """
+    Find the minimum-area enclosing rectangle of a convex polygon by rotating calipers.
+
+    :param x: x coordinates.
+    :param y: y coordinates.
+    :param polygon: ``polygon[:size]``: the polygon's vertex indices, counter-clockwise.
+    :param size: number of vertices.
+    :return: the area and the unit direction (dx, dy) of the rectangle side flush with a polygon
+        edge. One vertex gives area 0 and (1, 0); two give area 0 along their segment.
+    """
+    if size < 2:
+        return 0.0, 1.0, 0.0
+    if size == 2:
+        dx = x[polygon[1]] - x[polygon[0]]
+        dy = y[polygon[1]] - y[polygon[0]]
+        length = math.hypot(dx, dy)
+        if not length > 0.0:
+            return 0.0, 1.0, 0.0
+        return 0.0, dx / length, dy / length
+    best = np.inf
+    best_x = 1.0
+    best_y = 0.0
+    # Supporting vertices as positions in the polygon, moved forward (with wrap-around) only.
+    right = 1
+    top = 1
+    left = 1
+    last = size - 1
+    for i in range(size):
+        p = polygon[i]
+        q = polygon[i + 1] if i < last else polygon[0]
+        ex = x[q] - x[p]
+        ey = y[q] - y[p]
+        squared = ex * ex + ey * ey
+        if not squared > 0.0:
+            continue
+        # Farthest along the edge, then farthest from it, then farthest back.
+        for _ in range(size):
+            a = polygon[right]
+            b = polygon[right + 1] if right < last else polygon[0]
+            if ex * (x[b] - x[a]) + ey * (y[b] - y[a]) > 0.0:
+                right = right + 1 if right < last else 0
+            else:
+                break
+        if i == 0:
+            top = right
+        for _ in range(size):
+            a = polygon[top]
+            b = polygon[top + 1] if top < last else polygon[0]
+            if ex * (y[b] - y[a]) - ey * (x[b] - x[a]) > 0.0:
+                top = top + 1 if top < last else 0
+            else:
+                break
+        if i == 0:
+            left = top
+        for _ in range(size):
+            a = polygon[left]
+            b = polygon[left + 1] if left < last else polygon[0]
+            if ex * (x[b] - x[a]) + ey * (y[b] - y[a]) < 0.0:
+                left = left + 1 if left < last else 0
+            else:
+                break
+        r = polygon[right]
+        t = polygon[top]
+        lo = polygon[left]
+        along = ex * (x[r] - x[lo]) + ey * (y[r] - y[lo])
+        across = ex * (y[t] - y[p]) - ey * (x[t] - x[p])
+        area = along * across
+        # Compare along * across / squared without dividing: a * squared_best < best * squared.
+        if area < best * squared:
+            best = area / squared
+            best_x = ex
+            best_y = ey
+    if best == np.inf:
+        return 0.0, 1.0, 0.0
+    length = math.hypot(best_x, best_y)
+    return max(best, 0.0), best_x / length, best_y / length
+
+
+@nb.njit(cache=True)
+def min_area_rectangle_kernel(x: np.ndarray, y: np.ndarray) -> tuple:
+    """
+    Return the minimum-area rectangle of planar points as (cx, cy, dx, dy, width, height).
+
+    (dx, dy) is the unit direction of the first side, (-dy, dx) that of the second.
+    """
+    count = x.shape[0]
+    order = np.arange(count)
+    polygon = np.empty(count + 1, dtype=np.int64)
+    size = hull_2d_kernel(x, y, order, count, polygon)
+    _, dx, dy = calipers_kernel(x, y, polygon, size)
+    low_u = np.inf
+    high_u = -np.inf
+    low_v = np.inf
+    high_v = -np.inf
+    for i in range(count):
+        u = dx * x[i] + dy * y[i]
+        v = dx * y[i] - dy * x[i]
+        low_u = min(low_u, u)
+        high_u = max(high_u, u)
+        low_v = min(low_v, v)
+        high_v = max(high_v, v)
+    mid_u = 0.5 * (low_u + high_u)
+    mid_v = 0.5 * (low_v + high_v)
+    return dx * mid_u - dy * mid_v, dy * mid_u + dx * mid_v, dx, dy, high_u - low_u, high_v - low_v
+
+
+def min_area_rectangle(points: ArrayLike) -> Rectangle:
+    """
+    Return the minimum-area rectangle enclosing planar points (exact, up to rounding).
+
+    Coincident points give a zero-size rectangle, collinear points a zero-width one along their
+    line. The rectangle encloses every point.
+
+    :param points: (N, 2) finite points, N >= 1.
+    :return: the rectangle, in the units of the points.
+    :raises ValueError: on empty, non-finite or wrongly shaped input.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f'expected planar points of shape (N, 2), got shape {pts.shape}')
+    if len(pts) == 0:
+        raise ValueError('expected at least one planar point, got an empty array')
+    if not np.isfinite(pts).all():
+        raise ValueError('planar points must be finite, got NaN or inf')
+    # Relative to the centre of the bounding box, scaled to unit size: far and tiny clouds keep
+    # their precision and nothing underflows.
+    origin = 0.5 * (column_min(pts) + column_max(pts))
+    scale = float(np.max(np.abs(pts - origin)))
+    scale = scale if scale > 0.0 else 1.0
+    unit = (pts - origin) / scale
+    x = np.ascontiguousarray(unit[:, 0])
+    y = np.ascontiguousarray(unit[:, 1])
+    cx, cy, dx, dy, width, height = min_area_rectangle_kernel(x, y)
+    return Rectangle(
+        center=origin + scale * np.array([cx, cy]),
+        axes=np.array([[dx, -dy], [dy, dx]]),
+        extents=scale * np.array([width, height]),
+    )
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once on tiny inputs (see :mod:`mvbb_ros.kernels`)."""
+    min_area_rectangle([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [1.0, 2.0], [0.5, 1.0]])

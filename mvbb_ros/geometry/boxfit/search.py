@@ -1,0 +1,753 @@
+"""
+The orientation search of the minimum-volume box fit, in compiled code (numba).
+
+:mod:`mvbb_ros.geometry.boxfit.fit` brings a cloud to its PCA frame at unit size and hulls it
+(:mod:`mvbb_ros.geometry.boxfit.hull`); this module finds the frame of the smallest box of that
+hull.
+
+* For a fixed axis ``a``, the best rotation of the box about ``a`` is the minimum-area rectangle of
+  the projection along ``a`` (:mod:`mvbb_ros.geometry.boxfit.rectangle`, rotating calipers). The
+  outline of that projection is the hull's *silhouette*: the edges between facets facing along
+  ``a`` and the others, which form one loop. :func:`rotate_about` classes the facets, links the
+  silhouette edges into that loop, walks it (the outline in counter-clockwise order, no sort),
+  keeps its convex vertices in one Graham pass and runs the calipers on them. Should rounding break
+  the loop, the 2D hull of every projected hull vertex is used instead.
+* A minimal box has a face flush with a hull facet, or adjacent faces flush with hull edges
+  (O'Rourke 1985). Candidate axes (:func:`candidate_axes_kernel`) are the PCA axes, the facet
+  normals and the normals of planes through two of the longest hull edges, ranked by a lower
+  bound on the volume (the hull's width times the area of its shadow) and thinned to one per
+  degree. A candidate whose bound is above the ``starts``-th smallest box turned so far cannot
+  start the polish and is not turned.
+* Local improvement (:func:`polish`): the best ``starts`` candidates are turned, in turn, to their
+  best rotation about one of their other axes, keeping the better half every round (successive
+  halving); then Barequet and Har-Peled's grid of directions around the best frame is searched,
+  and the polish resumes from any better box it finds (:func:`search_kernel`).
+
+Cost, for a hull of H vertices, F ~ 2H facets and E ~ 3H edges: candidate ranking O(K (H + F))
+for K = F + 66 candidate axes (fewer with the binned shadow of large hulls and the 200-vertex
+width sample); then about 40 candidates, two per frame and polish round (8, 4, 2, 1 frames) and
+13 per grid round: 60 to 120 axes, O(F + E + S) each for a silhouette of S vertices (about
+sqrt(H) on smooth shapes). The volume bounds rule out about two fifths of the candidates and
+some grid directions before they are turned (on the parts of the shared scans).
+"""
+
+from __future__ import annotations
+
+import math
+
+from mvbb_ros.geometry.boxfit.rectangle import (
+    calipers_kernel,
+    hull_2d_kernel,
+    sift_down,
+    sort_xy_kernel,
+)
+import numba as nb
+import numpy as np
+
+#: |unit normal . unit axis| below which a facet counts as seen edge-on along the axis.
+SILHOUETTE_TOLERANCE = 1e-9
+#: Relative volume gain below which polishing stops (far below the 1 % quality target).
+POLISH_TOLERANCE = 1e-5
+#: Cube-map cells per face side for binning facet area vectors in the shadow-area bound.
+SHADOW_CELLS = 4
+#: Facet counts up to which the shadow area is summed over the facets themselves.
+EXACT_SHADOW_FACETS = 96
+#: Relative slack of the volume bounds when they rule out a candidate axis: far above their
+#: rounding (and the hull tolerance's effect on the shadow area, about 1e-11), far below a gain.
+BOUND_SLACK = 1e-6
+#: Candidate axes within about 1 degree (1 - |cos|) of one already taken are skipped.
+_PARALLEL = 1.5e-4
+
+
+# Small helpers ------------------------------------------------------------------------------
+
+
+@nb.njit
+def _ranking(values: np.ndarray, count: int) -> np.ndarray:
+    """Return the order of ``values[:count]``, smallest first, ties by index (stable)."""
+    order = np.arange(count)
+    # Sorting (value, index) pairs, so that ties keep their index order.
+    ties = np.arange(count).astype(np.float64)
+    sort_xy_kernel(values, ties, order, count)
+    return order
+
+
+@nb.njit
+def copy_frame(source: np.ndarray, target: np.ndarray) -> None:
+    """Copy a 3x3 array (an explicit loop: slice assignment compiles slowly in numba)."""
+    for i in range(3):
+        for j in range(3):
+            target[i, j] = source[i, j]
+
+
+@nb.njit
+def _cross_into(
+    out: np.ndarray, row: int, ax: float, ay: float, az: float, bx: float, by: float, bz: float
+) -> None:
+    out[row, 0] = ay * bz - az * by
+    out[row, 1] = az * bx - ax * bz
+    out[row, 2] = ax * by - ay * bx
+
+
+# Best rotation about one axis -----------------------------------------------------------------
+
+
+@nb.njit
+def _convex_loop(x: np.ndarray, y: np.ndarray, size: int, polygon: np.ndarray) -> int:
+    """
+    Keep the convex vertices of a counter-clockwise loop that is convex up to rounding.
+
+    One Graham pass from the lowest-leftmost vertex (surely convex) drops the vertices that do
+    not turn left (collinear runs, rounding dents). O(size).
+
+    :param x: x coordinates of the loop's points, in order.
+    :param y: y coordinates.
+    :param size: number of points.
+    :param polygon: receives the kept positions, counter-clockwise.
+    :return: the number of kept vertices.
+    """
+    start = 0
+    for s in range(1, size):
+        if x[s] < x[start] or (x[s] == x[start] and y[s] < y[start]):
+            start = s
+    kept = 0
+    for step in range(size + 1):
+        i = start + step
+        if i >= size:
+            i -= size
+        while kept >= 2:
+            o = polygon[kept - 2]
+            a = polygon[kept - 1]
+            turn = (x[a] - x[o]) * (y[i] - y[o]) - (y[a] - y[o]) * (x[i] - x[o])
+            if turn > 0.0:
+                break
+            kept -= 1
+        polygon[kept] = i
+        kept += 1
+    # The last kept vertex is the start again.
+    return kept - 1
+
+
+@nb.njit
+def rotate_about(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    edges: np.ndarray,
+    edge_facets: np.ndarray,
+    work: tuple,
+    ax: float,
+    ay: float,
+    az: float,
+    frame: np.ndarray,
+) -> float:
+    """
+    Find the minimum-volume box of the hull that has unit axis (ax, ay, az).
+
+    The rotation about the axis is the minimum-area rectangle of the hull's projection, whose
+    outline is the projection of the silhouette's vertices.
+
+    :param work: reusable arrays (side, following, silhouette, x, y, order, polygon).
+    :param frame: (3, 3) receives the box frame; its columns are the axis, the rectangle's first
+        side and their cross product.
+    :return: the box volume (of the hull vertices).
+    """
+    side, following, silhouette, px, py, order, polygon = work
+    count = vertices.shape[0]
+    low = np.inf
+    high = -np.inf
+    for i in range(count):
+        h = ax * vertices[i, 0] + ay * vertices[i, 1] + az * vertices[i, 2]
+        low = min(low, h)
+        high = max(high, h)
+    # A basis of the plane across the axis, from the coordinate axis most across it.
+    if abs(ax) <= abs(ay) and abs(ax) <= abs(az):
+        ux, uy, uz = 0.0, az, -ay
+    elif abs(ay) <= abs(az):
+        ux, uy, uz = -az, 0.0, ax
+    else:
+        ux, uy, uz = ay, -ax, 0.0
+    norm = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux /= norm
+    uy /= norm
+    uz /= norm
+    vx = ay * uz - az * uy
+    vy = az * ux - ax * uz
+    vz = ax * uy - ay * ux
+    # Silhouette: the edges between facets facing forward (n . a > tolerance) and the others,
+    # each directed as in its forward facet, form one loop that projects counter-clockwise
+    # onto the outline (seen from +a, with (u, v, a) right-handed).
+    facets = normals.shape[0]
+    for f in range(facets):
+        d = ax * normals[f, 0] + ay * normals[f, 1] + az * normals[f, 2]
+        side[f] = d > SILHOUETTE_TOLERANCE
+    size = 0
+    simple = True
+    for e in range(edges.shape[0]):
+        forward = side[edge_facets[e, 0]]
+        if forward != side[edge_facets[e, 1]]:
+            a = edges[e, 0] if forward else edges[e, 1]
+            if following[a] >= 0:
+                simple = False
+            else:
+                following[a] = edges[e, 1] if forward else edges[e, 0]
+                silhouette[size] = a
+                size += 1
+    corners = 0
+    if simple and size >= 3:
+        # Walk the loop; it must visit every silhouette edge once.
+        v = silhouette[0]
+        for s in range(size):
+            px[s] = ux * vertices[v, 0] + uy * vertices[v, 1] + uz * vertices[v, 2]
+            py[s] = vx * vertices[v, 0] + vy * vertices[v, 1] + vz * vertices[v, 2]
+            v = following[v]
+            if v < 0 or (v == silhouette[0] and s < size - 1):
+                simple = False
+                break
+        if simple and v == silhouette[0]:
+            corners = _convex_loop(px, py, size, polygon)
+    for s in range(size):
+        following[silhouette[s]] = -1
+    if corners < 3:
+        # Rounding made the silhouette ragged: the 2D hull of every projected vertex.
+        size = count
+        for s in range(count):
+            px[s] = ux * vertices[s, 0] + uy * vertices[s, 1] + uz * vertices[s, 2]
+            py[s] = vx * vertices[s, 0] + vy * vertices[s, 1] + vz * vertices[s, 2]
+            order[s] = s
+        corners = hull_2d_kernel(px, py, order, size, polygon)
+    area, dx, dy = calipers_kernel(px, py, polygon, corners)
+    sx = dx * ux + dy * vx
+    sy = dx * uy + dy * vy
+    sz = dx * uz + dy * vz
+    norm = math.sqrt(sx * sx + sy * sy + sz * sz)
+    sx /= norm
+    sy /= norm
+    sz /= norm
+    frame[0, 0] = ax
+    frame[1, 0] = ay
+    frame[2, 0] = az
+    frame[0, 1] = sx
+    frame[1, 1] = sy
+    frame[2, 1] = sz
+    frame[0, 2] = ay * sz - az * sy
+    frame[1, 2] = az * sx - ax * sz
+    frame[2, 2] = ax * sy - ay * sx
+    return (high - low) * area
+
+
+@nb.njit
+def new_work(vertex_count: int, facet_count: int) -> tuple:
+    """Return the reusable arrays of :func:`rotate_about` for a hull of this size."""
+    return (
+        np.zeros(facet_count, dtype=np.bool_),
+        np.full(vertex_count, -1, dtype=np.int64),
+        np.empty(vertex_count, dtype=np.int64),
+        np.empty(vertex_count),
+        np.empty(vertex_count),
+        np.empty(vertex_count, dtype=np.int64),
+        np.empty(vertex_count + 1, dtype=np.int64),
+    )
+
+
+@nb.njit
+def frame_volume(vertices: np.ndarray, frame: np.ndarray) -> float:
+    """Return the volume of the box of the vertices with the frame's axes (columns)."""
+    volume = 1.0
+    for k in range(3):
+        low = np.inf
+        high = -np.inf
+        for i in range(vertices.shape[0]):
+            h = frame[0, k] * vertices[i, 0] + frame[1, k] * vertices[i, 1]
+            h += frame[2, k] * vertices[i, 2]
+            low = min(low, h)
+            high = max(high, h)
+        volume *= high - low
+    return volume
+
+
+# Candidate axes -------------------------------------------------------------------------------
+
+
+@nb.njit
+def _binned_area_vectors(normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """
+    Sum the facet area vectors over a cube-map binning of their normals.
+
+    Half the sum of |A . n| over the bins is a lower bound of the shadow area along n (triangle
+    inequality), and a cheap one: at most 6 x 4 x 4 bins whatever the hull's size. Only the
+    bins that hold area are returned (a third to a half of them on the parts of the shared
+    scans); an empty bin's term is +0.0, so the sums are the same bit for bit.
+    """
+    cells = SHADOW_CELLS
+    binned = np.zeros((6 * cells * cells, 3))
+    for f in range(normals.shape[0]):
+        dominant = 0
+        for k in range(1, 3):
+            if abs(normals[f, k]) > abs(normals[f, dominant]):
+                dominant = k
+        major = normals[f, dominant]
+        face = 2 * dominant + (1 if major < 0.0 else 0)
+        first = normals[f, (dominant + 1) % 3] / abs(major)
+        second = normals[f, (dominant + 2) % 3] / abs(major)
+        i = min(max(int((first + 1.0) * (cells / 2.0)), 0), cells - 1)
+        j = min(max(int((second + 1.0) * (cells / 2.0)), 0), cells - 1)
+        row = (face * cells + i) * cells + j
+        for k in range(3):
+            binned[row, k] += areas[f] * normals[f, k]
+    size = 0
+    for row in range(binned.shape[0]):
+        if binned[row, 0] != 0.0 or binned[row, 1] != 0.0 or binned[row, 2] != 0.0:
+            for k in range(3):
+                binned[size, k] = binned[row, k]
+            size += 1
+    return binned[:size]
+
+
+@nb.njit
+def _volume_bounds(
+    axes: np.ndarray, vertices: np.ndarray, sample: np.ndarray, shadow: np.ndarray
+) -> np.ndarray:
+    """
+    Return a lower bound on the volume of any box with each axis.
+
+    The box's extent along the axis is at least the hull's width (measured on a sample of the
+    vertices: lower still), and its face across the axis covers the hull's shadow, whose area is
+    half the sum of |A_f . n| over the facet area vectors A_f (binned or not).
+    """
+    count = axes.shape[0]
+    bounds = np.empty(count)
+    for j in range(count):
+        ax = axes[j, 0]
+        ay = axes[j, 1]
+        az = axes[j, 2]
+        area = 0.0
+        for f in range(shadow.shape[0]):
+            area += abs(ax * shadow[f, 0] + ay * shadow[f, 1] + az * shadow[f, 2])
+        low = np.inf
+        high = -np.inf
+        for s in range(sample.shape[0]):
+            i = sample[s]
+            h = ax * vertices[i, 0] + ay * vertices[i, 1] + az * vertices[i, 2]
+            low = min(low, h)
+            high = max(high, h)
+        bounds[j] = 0.5 * area * (high - low)
+    return bounds
+
+
+@nb.njit
+def _shadow_vectors(normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """Return the facet area vectors of the shadow bound (binned for large hulls)."""
+    if normals.shape[0] > EXACT_SHADOW_FACETS:
+        return _binned_area_vectors(normals, areas)
+    shadow = np.empty((normals.shape[0], 3))
+    for f in range(normals.shape[0]):
+        for k in range(3):
+            shadow[f, k] = areas[f] * normals[f, k]
+    return shadow
+
+
+@nb.njit
+def _take_distinct(
+    axes: np.ndarray,
+    values: np.ndarray,
+    bounds: np.ndarray,
+    count: int,
+    out: np.ndarray,
+    out_bounds: np.ndarray,
+    size: int,
+) -> int:
+    """
+    Append to ``out[size:]`` up to `count` axes by increasing value (ties by index), no repeats.
+
+    Each taken axis's volume bound (from `bounds`) goes to the same row of `out_bounds`.
+
+    A direction and its opposite are one axis; repeats of any axis already in ``out`` are
+    skipped. The axes come off a heap one at a time: usually a sixth of them are looked at, and
+    a full sort cost more than the rest of the ranking. :return: the new size of `out`.
+    """
+    # The 2D sort's max-heap on (-value, -index): its top is the smallest value, ties by index
+    # (negation is exact, so the order is the sort's).
+    remaining = values.shape[0]
+    keys = -values
+    ties = -np.arange(remaining).astype(np.float64)
+    heap = np.arange(remaining)
+    for root in range(remaining // 2 - 1, -1, -1):
+        sift_down(keys, ties, heap, root, remaining)
+    start = size
+    while remaining > 0 and size - start < count and size < out.shape[0]:
+        j = heap[0]
+        remaining -= 1
+        heap[0] = heap[remaining]
+        sift_down(keys, ties, heap, 0, remaining)
+        repeated = False
+        for i in range(size):
+            dot = axes[j, 0] * out[i, 0] + axes[j, 1] * out[i, 1] + axes[j, 2] * out[i, 2]
+            if abs(dot) > 1.0 - _PARALLEL:
+                repeated = True
+                break
+        if not repeated:
+            for k in range(3):
+                out[size, k] = axes[j, k]
+            out_bounds[size] = bounds[j]
+            size += 1
+    return size
+
+
+@nb.njit
+def _edge_pair_axes(vertices: np.ndarray, edges: np.ndarray, count: int) -> np.ndarray:
+    """
+    Return the unit normals of the planes spanned by two of the `count` longest hull edges.
+
+    A face can be flush with two hull edges without lying on a facet (for a tetrahedron, with two
+    opposite edges); such faces' normals are candidate axes too.
+    """
+    count = min(count, edges.shape[0])
+    if count < 2:
+        return np.zeros((0, 3))
+    longest = np.full(count, -1, dtype=np.int64)
+    lengths = np.full(count, -1.0)
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        length = 0.0
+        for k in range(3):
+            length += (vertices[b, k] - vertices[a, k]) ** 2
+        if length > lengths[count - 1]:
+            i = count - 1
+            while i > 0 and lengths[i - 1] < length:
+                lengths[i] = lengths[i - 1]
+                longest[i] = longest[i - 1]
+                i -= 1
+            lengths[i] = length
+            longest[i] = e
+    directions = np.empty((count, 3))
+    for i in range(count):
+        e = longest[i]
+        norm = math.sqrt(lengths[i])
+        for k in range(3):
+            directions[i, k] = (vertices[edges[e, 1], k] - vertices[edges[e, 0], k]) / norm
+    out = np.empty((count * (count - 1) // 2, 3))
+    size = 0
+    for i in range(count):
+        for j in range(i + 1, count):
+            _cross_into(
+                out,
+                size,
+                directions[i, 0],
+                directions[i, 1],
+                directions[i, 2],
+                directions[j, 0],
+                directions[j, 1],
+                directions[j, 2],
+            )
+            norm = math.sqrt(out[size, 0] ** 2 + out[size, 1] ** 2 + out[size, 2] ** 2)
+            if norm > 1e-9:
+                for k in range(3):
+                    out[size, k] /= norm
+                size += 1
+    return out[:size]
+
+
+@nb.njit
+def _sample(count: int, size: int, seed: int) -> np.ndarray:
+    """Return `size` distinct indices below `count` (all when fewer), drawn from `seed`."""
+    indices = np.arange(count)
+    if count <= size:
+        return indices
+    state = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(0x2545F4914F6CDD1D)
+    for i in range(size):
+        # xorshift64*
+        state ^= state >> np.uint64(12)
+        state ^= state << np.uint64(25)
+        state ^= state >> np.uint64(27)
+        draw = (state * np.uint64(0x2545F4914F6CDD1D)) >> np.uint64(11)
+        j = i + int(draw % np.uint64(count - i))
+        indices[i], indices[j] = indices[j], indices[i]
+    return indices[:size].copy()
+
+
+@nb.njit(cache=True)
+def candidate_axes_kernel(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    areas: np.ndarray,
+    edges: np.ndarray,
+    seed: int,
+    candidates: int,
+    pair_edges: int,
+    sample_size: int,
+    exhaustive: int,
+) -> tuple:
+    """
+    Return the axes whose best box is computed (PCA axes, facet normals, edge-pair normals).
+
+    The coordinates are those of the PCA frame, so its axes are the coordinate axes. Hulls with
+    at most `exhaustive` facets give every distinct facet normal; larger ones the `candidates`
+    of least volume bound (:func:`_volume_bounds`). Edge-pair normals of the `pair_edges`
+    longest edges are ranked the same way, and half as many kept.
+
+    :return: the axes (K, 3) and their volume bounds (K,).
+    """
+    sample = _sample(vertices.shape[0], sample_size, seed)
+    shadow = _shadow_vectors(normals, areas)
+    facet_count = normals.shape[0] if normals.shape[0] <= exhaustive else candidates
+    pairs = _edge_pair_axes(vertices, edges, pair_edges)
+    out = np.empty((3 + facet_count + candidates // 2, 3))
+    out_bounds = np.empty(out.shape[0])
+    size = 0
+    for k in range(3):
+        for j in range(3):
+            out[size, j] = 1.0 if j == k else 0.0
+        size += 1
+    pca_bounds = _volume_bounds(out[:3], vertices, sample, shadow)
+    for k in range(3):
+        out_bounds[k] = pca_bounds[k]
+    bounds = _volume_bounds(normals, vertices, sample, shadow)
+    if normals.shape[0] <= exhaustive:
+        order = np.arange(normals.shape[0]).astype(np.float64)  # every normal, in order
+    else:
+        order = bounds
+    size = _take_distinct(normals, order, bounds, facet_count, out, out_bounds, size)
+    if pairs.shape[0] > 0 and candidates // 2 > 0:
+        bounds = _volume_bounds(pairs, vertices, sample, shadow)
+        size = _take_distinct(pairs, bounds, bounds, candidates // 2, out, out_bounds, size)
+    return out[:size].copy(), out_bounds[:size].copy()
+
+
+# The search ------------------------------------------------------------------------------------
+
+
+@nb.njit
+def grid_axes(frame: np.ndarray, grid_size: int) -> np.ndarray:
+    """
+    Return Barequet and Har-Peled's grid of directions around a frame.
+
+    The unit directions ``i a + j b + k c`` for integers ``|i|, |j|, |k| <= grid_size`` with no
+    common divisor (a, b, c the frame's columns), one per line through the origin.
+    """
+    side = 2 * grid_size + 1
+    out = np.empty((side * side * side, 3))
+    size = 0
+    for i in range(-grid_size, grid_size + 1):
+        for j in range(-grid_size, grid_size + 1):
+            for k in range(-grid_size, grid_size + 1):
+                # One of each opposite pair: the first non-zero coefficient is positive.
+                if not (i > 0 or (i == 0 and (j > 0 or (j == 0 and k > 0)))):
+                    continue
+                a = abs(i)
+                b = abs(j)
+                while b:
+                    a, b = b, a % b
+                b = abs(k)
+                while b:
+                    a, b = b, a % b
+                if a != 1:
+                    continue
+                x = i * frame[0, 0] + j * frame[0, 1] + k * frame[0, 2]
+                y = i * frame[1, 0] + j * frame[1, 1] + k * frame[1, 2]
+                z = i * frame[2, 0] + j * frame[2, 1] + k * frame[2, 2]
+                norm = math.sqrt(x * x + y * y + z * z)
+                out[size, 0] = x / norm
+                out[size, 1] = y / norm
+                out[size, 2] = z / norm
+                size += 1
+    return out[:size].copy()
+
+
+@nb.njit
+def polish(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    edges: np.ndarray,
+    edge_facets: np.ndarray,
+    work: tuple,
+    frames: np.ndarray,
+    volumes: np.ndarray,
+    max_rounds: int,
+) -> tuple:
+    """
+    Improve boxes by turning each, in turn, to its best rotation about one of its other axes.
+
+    Each frame is best about its first axis. Every round tries the other two axes of every
+    frame still improving and keeps the better turn when it gains more than
+    :data:`POLISH_TOLERANCE`; that axis then comes first. After each round the worse half of
+    the frames is dropped (successive halving), so only the best start is followed to the end.
+
+    :return: the best volume and frame (3, 3).
+    """
+    count = frames.shape[0]
+    improving = np.ones(count, dtype=np.bool_)
+    trial = np.empty((3, 3))
+    best_trial = np.empty((3, 3))
+    for _ in range(max_rounds):
+        moved = False
+        for s in range(count):
+            if not improving[s]:
+                continue
+            best = np.inf
+            for column in (1, 2):
+                volume = rotate_about(
+                    vertices,
+                    normals,
+                    edges,
+                    edge_facets,
+                    work,
+                    frames[s, 0, column],
+                    frames[s, 1, column],
+                    frames[s, 2, column],
+                    trial,
+                )
+                if volume < best:
+                    best = volume
+                    copy_frame(trial, best_trial)
+            if best < volumes[s] * (1.0 - POLISH_TOLERANCE):
+                volumes[s] = best
+                copy_frame(best_trial, frames[s])
+                moved = True
+            else:
+                improving[s] = False
+        if not moved:
+            break
+        # Keep the better half, best first (an insertion sort: a handful of frames).
+        order = _ranking(volumes, count)
+        kept = (count + 1) // 2
+        new_frames = np.empty((kept, 3, 3))
+        new_volumes = np.empty(kept)
+        new_improving = np.empty(kept, dtype=np.bool_)
+        for i in range(kept):
+            copy_frame(frames[order[i]], new_frames[i])
+            new_volumes[i] = volumes[order[i]]
+            new_improving[i] = improving[order[i]]
+        frames = new_frames
+        volumes = new_volumes
+        improving = new_improving
+        count = kept
+    best = 0
+    for s in range(1, count):
+        if volumes[s] < volumes[best]:
+            best = s
+    frame = np.empty((3, 3))
+    copy_frame(frames[best], frame)
+    return volumes[best], frame
+
+
+@nb.njit(cache=True)
+def search_kernel(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    areas: np.ndarray,
+    edges: np.ndarray,
+    edge_facets: np.ndarray,
+    seed: int,
+    candidates: int,
+    pair_edges: int,
+    sample_size: int,
+    exhaustive: int,
+    starts: int,
+    max_rounds: int,
+    grid_size: int,
+) -> tuple:
+    """
+    Search the frame of the minimum-volume box of a full-dimensional hull.
+
+    :return: the volume (of the hull vertices) and the frame (3, 3), columns the box axes.
+    """
+    work = new_work(vertices.shape[0], normals.shape[0])
+    axes, bounds = candidate_axes_kernel(
+        vertices, normals, areas, edges, seed, candidates, pair_edges, sample_size, exhaustive
+    )
+    count = axes.shape[0]
+    kept = max(1, min(starts, count))
+    # Only the `kept` smallest boxes start the polish: an axis whose volume bound is above the
+    # kept-th smallest box so far cannot be one of them, and is not turned (the slack covers
+    # the bound's rounding; the starts are the same as with every axis turned).
+    smallest = np.full(kept, np.inf)
+    volumes = np.full(count, np.inf)
+    frames = np.empty((count, 3, 3))
+    for j in range(count):
+        if bounds[j] * (1.0 - BOUND_SLACK) > smallest[kept - 1]:
+            continue
+        volumes[j] = rotate_about(
+            vertices,
+            normals,
+            edges,
+            edge_facets,
+            work,
+            axes[j, 0],
+            axes[j, 1],
+            axes[j, 2],
+            frames[j],
+        )
+        i = kept - 1
+        if volumes[j] < smallest[i]:
+            while i > 0 and smallest[i - 1] > volumes[j]:
+                smallest[i] = smallest[i - 1]
+                i -= 1
+            smallest[i] = volumes[j]
+    order = _ranking(volumes, count)
+    start_frames = np.empty((kept, 3, 3))
+    start_volumes = np.empty(kept)
+    for i in range(kept):
+        copy_frame(frames[order[i]], start_frames[i])
+        start_volumes[i] = volumes[order[i]]
+    volume, frame = polish(
+        vertices, normals, edges, edge_facets, work, start_frames, start_volumes, max_rounds
+    )
+    # Barequet and Har-Peled's grid of directions around the best frame: when the best box about
+    # one of them is smaller, polish it and look again (the alternating rotations alone can stop
+    # where no single-axis turn helps but a turn about a diagonal does).
+    # A direction whose bound is above the best box cannot give a smaller one: not turned.
+    trial = np.empty((1, 3, 3))
+    for _ in range(max_rounds if grid_size > 0 else 0):
+        grid = grid_axes(frame, grid_size)
+        sample = _sample(vertices.shape[0], sample_size, seed)
+        bounds = _volume_bounds(grid, vertices, sample, _shadow_vectors(normals, areas))
+        best = volume
+        for j in range(grid.shape[0]):
+            if bounds[j] * (1.0 - BOUND_SLACK) > best:
+                continue
+            found = rotate_about(
+                vertices,
+                normals,
+                edges,
+                edge_facets,
+                work,
+                grid[j, 0],
+                grid[j, 1],
+                grid[j, 2],
+                frames[0],
+            )
+            if found < best:
+                best = found
+                copy_frame(frames[0], trial[0])
+        if not best < volume * (1.0 - POLISH_TOLERANCE):
+            break
+        found_volume = np.array([best])
+        volume, frame = polish(
+            vertices, normals, edges, edge_facets, work, trial.copy(), found_volume, max_rounds
+        )
+    return volume, frame
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once on a tiny hull (see :mod:`mvbb_ros.kernels`)."""
+    from mvbb_ros.geometry.boxfit.hull import convex_hull
+
+    points = np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T * [0.9, 0.6, 0.3]
+    found = convex_hull(points)
+    vertices = np.ascontiguousarray(points[found.vertices])
+    search_kernel(
+        vertices,
+        found.normals,
+        found.areas,
+        found.edges,
+        found.edge_facets,
+        0,
+        8,
+        4,
+        200,
+        32,
+        4,
+        3,
+        1,
+    )

@@ -1,0 +1,708 @@
+"""
+Fit-and-split MVBB decomposition (paper Sec. III-B to III-D); no ROS import.
+
+:func:`decompose` fits the minimum-volume bounding box (MVBB) of a point cloud, then repeatedly
+cuts a box in two along its best face-parallel cut (:mod:`mvbb_ros.geometry.decomposition.split`),
+fits an MVBB to each part and keeps the split when the volume gain Theta* (eq. 2) is below the gain
+threshold t. The result is a :class:`Decomposition`: the whole tree, the leaf boxes and which
+points each holds.
+
+Known limit of the criterion (measured on the paper's GraspIt! mug, see
+``benchmarks/decompose.py``): mesh vertices that lie on planar rings with empty layers between
+them can be cut into flat boxes of zero volume. Each such split removes a whole slab, and as
+Theta* is relative to the shrinking total leaf volume, high thresholds (t = 0.98) then keep
+splitting (over 30 boxes where the paper has 5); surface samples of the same mesh give 4.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass
+import heapq
+import json
+import math
+from typing import Any, get_args, Literal
+
+from mvbb_ros.arrays import IndexArray
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
+from mvbb_ros.geometry.decomposition import split as splitting
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: Default gain threshold t (the paper's middle setting).
+DEFAULT_GAIN_THRESHOLD = 0.94
+#: Default smallest point count of a kept box. Measured with ``benchmarks/decompose.py --sweep
+#: min_points`` on the real scans with 0.5 % added outliers at t = 0.94: 10 drops over a quarter
+#: of the outliers (1 drops none, and 4 keeps 3-point flat boxes), at most 0.07 % of a scan's
+#: real points, and cuts the boxes per scan from 12 to 7; 20 drops more outliers but also more
+#: real vertices of the paper's mug (45 against 33 at t = 0.98), 40 loses up to 0.16 % of real
+#: points. A count, so independent of units; mind it when voxel filtering thins a cloud.
+DEFAULT_MIN_POINTS = 10
+#: With rescoring, another cut replaces the paper's best cut by theta only when its parts'
+#: boxes are smaller by more than this share of the box's volume: near-ties keep the paper's
+#: cut (the PCL stereo mug's handle cut against a rim slab 0.2 % smaller; docs/single_views.md).
+RESCORE_MARGIN = 0.005
+#: Processing orders of the boxes waiting to be tested (see :func:`decompose`).
+Order = Literal['volume', 'gain', 'breadth', 'depth']
+ORDERS: tuple[Order, ...] = get_args(Order)
+#: Why a node was not split (:attr:`DecompositionNode.stop_reason`).
+StopReason = Literal['gain', 'no_cut', 'noise', 'max_boxes', 'dropped', 'thin']
+STOP_REASONS: tuple[StopReason, ...] = get_args(StopReason)
+
+
+def _integer(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f'{name} must be an integer >= {minimum}, got {value!r}')
+    return int(value)
+
+
+@dataclass(frozen=True)
+class DecompositionSettings:
+    """
+    The arguments a decomposition was made with (validated; see :func:`decompose`).
+
+    :raises ValueError: when a setting is out of range, with the setting's name and value.
+    """
+
+    gain_threshold: float = DEFAULT_GAIN_THRESHOLD
+    min_points: int = DEFAULT_MIN_POINTS
+    split_measure: splitting.SplitMeasure = 'area'
+    rescore_cuts: int = 0
+    max_boxes: int | None = None
+    seed: int = 0
+    grid_cells: int = splitting.DEFAULT_GRID_CELLS
+    order: Order = 'volume'
+    min_thickness: float = 0.0
+
+    def __post_init__(self) -> None:
+        threshold = self.gain_threshold
+        if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.number)):
+            raise ValueError(f'gain_threshold must be a number in [0, 1], got {threshold!r}')
+        if not 0.0 <= float(threshold) <= 1.0:
+            raise ValueError(f'gain_threshold must be in [0, 1], got {threshold!r}')
+        object.__setattr__(self, 'gain_threshold', float(threshold))
+        object.__setattr__(self, 'min_points', _integer('min_points', self.min_points, 1))
+        if self.split_measure not in splitting.SPLIT_MEASURES:
+            raise ValueError(
+                f'split_measure must be one of {splitting.SPLIT_MEASURES}, '
+                f'got {self.split_measure!r}'
+            )
+        object.__setattr__(self, 'rescore_cuts', _integer('rescore_cuts', self.rescore_cuts, 0))
+        if self.max_boxes is not None:
+            object.__setattr__(self, 'max_boxes', _integer('max_boxes', self.max_boxes, 1))
+        object.__setattr__(self, 'seed', _integer('seed', self.seed, 0))
+        object.__setattr__(self, 'grid_cells', _integer('grid_cells', self.grid_cells, 2))
+        if self.order not in ORDERS:
+            raise ValueError(f'order must be one of {ORDERS}, got {self.order!r}')
+        thickness = self.min_thickness
+        if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.number)):
+            raise ValueError(f'min_thickness must be a number >= 0, got {thickness!r}')
+        if not 0.0 <= float(thickness) < math.inf:
+            raise ValueError(f'min_thickness must be finite and >= 0, got {thickness!r}')
+        object.__setattr__(self, 'min_thickness', float(thickness))
+
+
+@dataclass(frozen=True, eq=False)
+class DecompositionNode:
+    """
+    One box of the decomposition tree.
+
+    :ivar index: position in :attr:`Decomposition.nodes` (0 is the root).
+    :ivar box: the MVBB of the node's points.
+    :ivar point_indices: sorted indices into :attr:`Decomposition.points` of the node's points.
+    :ivar parent: index of the parent node, None for the root.
+    :ivar children: indices of the child nodes, lower side of the cut first; empty unless the
+        node was split. A child dropped as noise is listed too (its ``dropped`` is True).
+    :ivar cut: the cut that split this node (see
+        :class:`mvbb_ros.geometry.decomposition.split.Cut`), None when it was not split. The cut
+        that made a node is its parent's ``cut``.
+    :ivar tested_cut: the best cut found and tested for this node (``cut`` when it was split,
+        the refused one when it was not); None when no cut was tested.
+    :ivar theta: split measure theta of ``tested_cut`` (dimensionless), or None.
+    :ivar gain: volume gain Theta* (eq. 2) of ``tested_cut`` (dimensionless), or None. For a
+        split refused before its parts were fitted (with the volume of the other leaves, no
+        child volumes could have brought Theta* below t), the lower bound that refused it:
+        Theta* with children of no volume.
+    :ivar depth: 0 for the root, the parent's depth + 1 otherwise.
+    :ivar dropped: True when the node has fewer than ``min_points`` points and was removed as
+        noise; its points are in :attr:`Decomposition.dropped_point_indices`.
+    :ivar stop_reason: why a kept node was not split: ``'gain'`` (Theta* >= t), ``'no_cut'``
+        (no cut splits its points in two with a finite theta: fewer than two distinct points, or
+        all of them on a line), ``'noise'`` (both parts below ``min_points``), ``'max_boxes'``
+        (the cap on leaves was reached); ``'dropped'`` for a dropped node; None for a split one.
+    """
+
+    index: int
+    box: Box
+    point_indices: IndexArray
+    parent: int | None
+    children: tuple[int, ...]
+    cut: splitting.Cut | None
+    tested_cut: splitting.Cut | None
+    theta: float | None
+    gain: float | None
+    depth: int
+    dropped: bool
+    stop_reason: StopReason | None
+
+    @property
+    def is_leaf(self) -> bool:
+        """Tell whether this is a kept box that was not split: a box of the approximation."""
+        return not self.children and not self.dropped
+
+    @property
+    def point_count(self) -> int:
+        """Return the number of points in the box."""
+        return len(self.point_indices)
+
+    def to_dict(self, *, include_point_indices: bool = False) -> dict[str, Any]:
+        """
+        Return the node as a JSON-ready dict.
+
+        The box is its centre, quaternion (x, y, z, w), extents and volume; with the point
+        count, parent, children, depth, cut, theta and Theta* (``gain``).
+
+        :param include_point_indices: also list the node's point indices.
+        :return: the dict.
+        """
+        data: dict[str, Any] = {
+            'index': self.index,
+            'parent': self.parent,
+            'children': list(self.children),
+            'depth': self.depth,
+            'is_leaf': self.is_leaf,
+            'dropped': self.dropped,
+            'stop_reason': self.stop_reason,
+            'point_count': self.point_count,
+            'box': self.box.to_dict(),
+            'theta': self.theta,
+            'gain': self.gain,
+            'cut': None if self.cut is None else self.cut.to_dict(),
+            'tested_cut': None if self.tested_cut is None else self.tested_cut.to_dict(),
+        }
+        if include_point_indices:
+            data['point_indices'] = [int(i) for i in self.point_indices]
+        return data
+
+
+@dataclass(frozen=True, eq=False)
+class Decomposition:
+    """
+    The result of :func:`decompose`: the box tree over the input points.
+
+    :ivar points: (N, 3) float64 input points (a read-only copy).
+    :ivar nodes: every node in creation order; ``nodes[0]`` is the root and a node's children
+        come after it.
+    :ivar settings: the arguments used (:class:`DecompositionSettings`).
+    """
+
+    points: NDArray[np.float64]
+    nodes: tuple[DecompositionNode, ...]
+    settings: DecompositionSettings
+
+    @property
+    def root(self) -> DecompositionNode:
+        """Return the root node: the MVBB of all input points."""
+        return self.nodes[0]
+
+    @property
+    def leaf_nodes(self) -> list[DecompositionNode]:
+        """Return the kept leaf nodes in node (creation) order."""
+        return [node for node in self.nodes if node.is_leaf]
+
+    @property
+    def leaves(self) -> list[Box]:
+        """Return the final boxes, the shape approximation, in node (creation) order."""
+        return [node.box for node in self.leaf_nodes]
+
+    @property
+    def leaf_point_indices(self) -> list[IndexArray]:
+        """Return the sorted point indices of each leaf, in the order of :attr:`leaves`."""
+        return [node.point_indices for node in self.leaf_nodes]
+
+    @property
+    def dropped_point_indices(self) -> IndexArray:
+        """Return the sorted indices of the points of boxes dropped as noise."""
+        dropped = [node.point_indices for node in self.nodes if node.dropped]
+        if not dropped:
+            return np.empty(0, dtype=np.intp)
+        return np.sort(np.concatenate(dropped))
+
+    @property
+    def kept_point_indices(self) -> IndexArray:
+        """Return the sorted indices of the points in the leaves (all but the dropped ones)."""
+        kept = self.leaf_point_indices
+        if not kept:
+            return np.empty(0, dtype=np.intp)
+        return np.sort(np.concatenate(kept))
+
+    @property
+    def root_volume(self) -> float:
+        """Return the volume of the root box (cubed units of the points)."""
+        return self.root.box.volume
+
+    @property
+    def leaf_volume(self) -> float:
+        """Return the summed volume of the leaf boxes (cubed units of the points)."""
+        return math.fsum(box.volume for box in self.leaves)
+
+    @property
+    def volume_ratio(self) -> float:
+        """Return leaf volume over root volume (scale-free; 1.0 for a flat root)."""
+        root = self.root_volume
+        return self.leaf_volume / root if root > 0.0 else 1.0
+
+    def to_dict(self, *, include_point_indices: bool = False) -> dict[str, Any]:
+        """
+        Return the decomposition as a JSON-ready dict.
+
+        Keys: ``settings``, ``point_count``, ``dropped_point_count``, ``root_volume``,
+        ``leaf_volume``, ``leaves`` (the leaf node indices, in the order of :attr:`leaves`) and
+        ``nodes`` (every node, see :meth:`DecompositionNode.to_dict`: box as centre, quaternion
+        x y z w, extents and volume, point count, parent, children, cut, theta and Theta*).
+
+        :param include_point_indices: also list every node's point indices.
+        :return: the dict.
+        """
+        return {
+            'settings': asdict(self.settings),
+            'point_count': len(self.points),
+            'dropped_point_count': len(self.dropped_point_indices),
+            'root_volume': self.root_volume,
+            'leaf_volume': self.leaf_volume,
+            'leaves': [node.index for node in self.leaf_nodes],
+            'nodes': [
+                node.to_dict(include_point_indices=include_point_indices) for node in self.nodes
+            ],
+        }
+
+    def to_json(self, indent: int | None = 2, *, include_point_indices: bool = False) -> str:
+        """Return :meth:`to_dict` as a JSON string."""
+        return json.dumps(self.to_dict(include_point_indices=include_point_indices), indent=indent)
+
+    def __repr__(self) -> str:
+        return (
+            f'Decomposition({len(self.points)} points, {len(self.nodes)} nodes, '
+            f'{len(self.leaf_nodes)} leaves, {len(self.dropped_point_indices)} dropped, '
+            f'leaf/root volume {self.volume_ratio:.3f})'
+        )
+
+
+@dataclass
+class _Draft:
+    """Mutable node while the tree is built."""
+
+    box: Box
+    point_indices: IndexArray
+    parent: int | None
+    depth: int
+    children: tuple[int, ...] = ()
+    cut: splitting.Cut | None = None
+    tested_cut: splitting.Cut | None = None
+    theta: float | None = None
+    gain: float | None = None
+    dropped: bool = False
+    stop_reason: StopReason | None = None
+
+
+@dataclass
+class _Split:
+    """
+    A candidate split with its two fitted child boxes.
+
+    ``boxes`` is None when the split was refused before both parts were fitted: no child
+    volumes could have passed it (``bound`` 0), or the larger part's box alone kept Theta* at t
+    or above (``bound`` its volume). ``volume`` is then ``bound``, a lower bound.
+    """
+
+    cut: splitting.Cut
+    parts: tuple[IndexArray, IndexArray]
+    boxes: tuple[Box, Box] | None
+    bound: float = 0.0
+
+    @property
+    def volume(self) -> float:
+        if self.boxes is None:
+            return self.bound
+        return self.boxes[0].volume + self.boxes[1].volume
+
+
+class _Waiting:
+    """Boxes waiting to be tested, popped in the chosen order."""
+
+    def __init__(self, order: Order) -> None:
+        self._order = order
+        self._heap: list[tuple[float, int]] = []
+        self._queue: deque[int] = deque()
+
+    def push_all(self, entries: list[tuple[int, float]]) -> None:
+        """Add (node index, priority) entries; the priority is used by the heap orders only."""
+        if self._order in ('volume', 'gain'):
+            for index, priority in entries:
+                heapq.heappush(self._heap, (-priority, index))
+        elif self._order == 'breadth':
+            self._queue.extend(index for index, _ in entries)
+        else:
+            # Depth first pops the last pushed: push C2 before C1 so C1's subtree comes first.
+            self._queue.extend(index for index, _ in reversed(entries))
+
+    def pop(self) -> int:
+        """Remove and return the next node index."""
+        if self._heap:
+            return heapq.heappop(self._heap)[1]
+        if self._order == 'breadth':
+            return self._queue.popleft()
+        return self._queue.pop()
+
+    def __bool__(self) -> bool:
+        return bool(self._heap) or bool(self._queue)
+
+
+def _validated_points(points: ArrayLike) -> NDArray[np.float64]:
+    try:
+        pts = np.array(points, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f'decompose needs an (N, 3) array of numbers: {error}') from error
+    if pts.size == 0:
+        raise ValueError(
+            f'decompose needs at least one point, got an empty point array (shape {pts.shape})'
+        )
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'decompose needs points of shape (N, 3), got shape {pts.shape}')
+    if not np.all(np.isfinite(pts)):
+        raise ValueError('decompose got non-finite coordinates (NaN or inf); remove them first')
+    pts.setflags(write=False)
+    return pts
+
+
+def _best_split(
+    points: NDArray[np.float64],
+    draft: _Draft,
+    settings: DecompositionSettings,
+    fit_parts: bool,
+    others: float | None = None,
+) -> _Split | None:
+    """
+    Find the split of a node: the paper's theta*, or the best of k real fits (rescoring).
+
+    The part with more points of each cut is fitted first. A cut whose larger part's box alone
+    is no smaller than the best split so far (less the margin when that is the paper's cut)
+    cannot win, and its other part is not fitted.
+
+    :param fit_parts: fit the parts' boxes; False returns the best cut by theta unfitted (for a
+        split that no child volumes could pass).
+    :param others: V(A minus P) when the split is tested at once (eq. 2): when every cut's
+        larger part alone keeps Theta* at t or above, the cut with the smallest such box is
+        returned with only that bound (no other part's box can lower Theta*). None fits the
+        parts needed to rank the cuts (the ``'gain'`` order ranks splits before A is known).
+    """
+    box = draft.box
+    local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
+    scores = splitting.score_cuts(
+        local,
+        cells=settings.grid_cells,
+        measure=settings.split_measure,
+        min_thickness=settings.min_thickness,
+    )
+    limit = max(1, settings.rescore_cuts) if fit_parts else 1
+    candidates: list[tuple[splitting.Cut, tuple[IndexArray, IndexArray], int, Box]] = []
+    for cut in splitting.candidate_cuts(scores, draft.box, limit=limit):
+        upper = splitting.cut_mask(scores, cut)
+        parts = (draft.point_indices[~upper], draft.point_indices[upper])
+        if not fit_parts:
+            return _Split(cut=cut, parts=parts, boxes=None)
+        larger = 0 if len(parts[0]) >= len(parts[1]) else 1
+        first = fit_part(np.take(points, parts[larger], axis=0), seed=settings.seed)
+        candidates.append((cut, parts, larger, first))
+    if not candidates:
+        return None
+    if others is not None and not any(
+        _theta_star(draft, first.volume, others) < settings.gain_threshold
+        for *_, first in candidates
+    ):
+        cut, parts, _, first = min(candidates, key=lambda candidate: candidate[3].volume)
+        return _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
+    paper_cut = candidates[0][0]
+    best: _Split | None = None
+    for cut, parts, larger, first in candidates:
+        # The paper's cut (the first) yields only to a clearly smaller pair of boxes.
+        margin = RESCORE_MARGIN * box.volume if best is not None and best.cut is paper_cut else 0.0
+        if best is not None and not first.volume < best.volume - margin:
+            continue
+        second = fit_part(np.take(points, parts[1 - larger], axis=0), seed=settings.seed)
+        boxes = (first, second) if larger == 0 else (second, first)
+        split = _Split(cut=cut, parts=parts, boxes=boxes)
+        if best is None or split.volume < best.volume - margin:
+            best = split
+    return best
+
+
+def _others(index: int, leaf_volumes: dict[int, float]) -> float:
+    """Return V(A minus P): the summed volume of the current leaves other than `index`."""
+    return math.fsum(volume for i, volume in leaf_volumes.items() if i != index)
+
+
+def _may_pass(draft: _Draft, others: float, threshold: float) -> bool:
+    """
+    Tell whether some child volumes could bring Theta* (eq. 2) of the node below `threshold`.
+
+    Theta* is smallest when both children have no volume: others / (V(P) + others)
+    (:func:`_theta_star`; the real Theta* is never below it). When that is not below t, the
+    split is refused whatever the fits would give: the largest box first, a small box is
+    refused once V(P) <= (1 - t) / t of the others' volume.
+    """
+    return _theta_star(draft, 0.0, others) < threshold
+
+
+def _reduction(draft: _Draft, split: _Split | None) -> float:
+    """Return the volume a split removes, V(P) - V(C1) - V(C2) (-inf without a split)."""
+    return -math.inf if split is None else draft.box.volume - split.volume
+
+
+def _theta_star(draft: _Draft, children: float, others: float) -> float:
+    """
+    Return Theta* (eq. 2) of splitting `draft` into boxes of `children` volume in all.
+
+    Rounding is monotone: a lower bound on `children` gives a lower bound on Theta*.
+    """
+    denominator = draft.box.volume + others
+    return (children + others) / denominator if denominator > 0.0 else 1.0
+
+
+def _record_gain(draft: _Draft, split: _Split, others: float) -> float:
+    """Compute Theta* (eq. 2) of `split` (``others``: V(A minus P)) and record it on `draft`."""
+    gain = _theta_star(draft, split.volume, others)
+    draft.tested_cut = split.cut
+    draft.theta = split.cut.theta
+    draft.gain = float(gain)
+    return gain
+
+
+def decompose(
+    points: ArrayLike,
+    *,
+    gain_threshold: float = DEFAULT_GAIN_THRESHOLD,
+    min_points: int = DEFAULT_MIN_POINTS,
+    split_measure: splitting.SplitMeasure = 'area',
+    rescore_cuts: int = 0,
+    max_boxes: int | None = None,
+    seed: int = 0,
+    grid_cells: int = splitting.DEFAULT_GRID_CELLS,
+    order: Order = 'volume',
+    min_thickness: float = 0.0,
+) -> Decomposition:
+    """
+    Decompose a point cloud into minimum-volume bounding boxes by fit-and-split.
+
+    The defaults are the paper's algorithm. The root is the MVBB of all points. A box P is cut
+    at the best of its six families of face-parallel grid cuts by the 2D split measure theta
+    (eq. 1, :mod:`mvbb_ros.geometry.decomposition.split`); each part gets its own MVBB (C1 below
+    the cut, C2 above); the split is kept when the volume gain
+
+        Theta* = (V(C1) + V(C2) + V(A minus P)) / (V(P) + V(A minus P))
+
+    is below `gain_threshold` (eq. 2; A is the set of current leaf boxes, P included).
+    Theta* < 1 exactly when the children's volume is below the parent's, so with t <= 1 every
+    kept split lowers the total leaf volume. A box whose split is refused is final: it is not
+    tested again when A shrinks later. When the denominator is zero (every current box is flat)
+    Theta* is taken as 1: there is no volume to gain.
+
+    Processing order (Theta* depends on A, so the order matters; the paper does not say):
+    by default the largest box waiting to be tested goes first (``order='volume'``, ties by
+    node index), so the splits that can gain most are tested while A is largest, and the
+    result does not depend on which side of a cut is called lower (an arbitrary sign of a box
+    axis), as it does for ``'breadth'`` (first in, first out: level by level) and ``'depth'``
+    (last in, first out: C1's subtree before C2's). ``'gain'`` is best first: every leaf's best
+    split is fitted when the leaf is made, the one that removes the most volume is tested next,
+    and the first refusal ends the decomposition (every other split would gain less); so no
+    leaf is left whose split would pass against the final A. ``benchmarks/decompose.py
+    --sweep order`` compares them: they agree at t = 0.90 and 0.94 on the paper's models.
+
+    Noise: a box with fewer than `min_points` points is not kept. When an accepted split makes
+    a part below `min_points`, that child stays in the tree with ``dropped=True``, its points
+    leave the kept set and are reported in :attr:`Decomposition.dropped_point_indices`, and its
+    volume leaves A; the other child is kept. The split is still tested by eq. 2 with both
+    fitted children, as the paper does. A split whose parts are both below `min_points` is
+    refused (``stop_reason='noise'``): a kept box is never dropped by its own split. A cloud
+    of fewer than `min_points` points gives a dropped root, no leaves and every point dropped.
+    So the leaves' point sets partition the kept points, and kept plus dropped are all points.
+
+    Fits skipped: with the volume of the other leaves, some splits could not pass eq. 2 even
+    with children of no volume (others / (V(P) + others) >= t: at t = 0.94 a box of less than
+    6.4 % of the others' volume). Such a split is refused as eq. 2 would refuse it, its best cut
+    recorded, but its parts are not fitted (its ``gain`` is that lower bound). Otherwise the
+    part with more points is fitted first, and when its box alone keeps Theta* at t or above
+    the split is refused without fitting the other part (its ``gain`` is Theta* with the other
+    child of no volume; about half of the refused splits on the shared scans). The result is
+    the same as with every fit made (the ``'gain'`` order and rescoring fit every split they
+    rank).
+
+    Part fits: the root gets the full default search (:func:`mvbb_ros.geometry.boxfit.fit.fit_box`,
+    hulled on its grid coreset from 16,384 points on:
+    :data:`~mvbb_ros.geometry.boxfit.fit.ROOT_SEARCH`), each part the lighter
+    :data:`mvbb_ros.geometry.boxfit.fit.PART_SEARCH` (half the candidate axes and starts, no grid
+    rounds, parts of 1,000 points or more hulled on a grid coreset). Against the full search on the
+    shared scans and models (``benchmarks/decompose.py --parts``): part volumes median 1.0000 x,
+    99th percentile 1.009 x; box counts move on 1 of 39 clouds at t = 0.90, 2 at 0.94 and 22 at
+    0.98, where a part's volume a fraction of a percent off flips decisions
+    (``docs/performance.md``).
+
+    :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
+        and volumes come out in those units. Every criterion is scale-free: theta and Theta*
+        are ratios, the grid is relative to each box and `min_points` is a count.
+    :param gain_threshold: the paper's t in [0, 1]; a split is kept when Theta* < t. Lower
+        means fewer boxes (0 never splits, 1 keeps every split that lowers the volume). The
+        paper shows 0.90, 0.94 and 0.98.
+    :param min_points: smallest number of points of a kept box (>= 1); see Noise above.
+    :param split_measure: ``'area'`` (paper: areas of the parts' rectangles in the six 2D
+        projections) or ``'volume'`` (option: volumes of the parts' boxes in P's frame, three
+        families, same cost).
+    :param rescore_cuts: 0 is the paper (the single best cut by theta). k > 0 fits both
+        children's MVBBs for the k best distinct cuts (local minima of theta) and keeps the one
+        with the smallest summed child volume, the paper's cut unless another is smaller by
+        more than :data:`RESCORE_MARGIN` of the box: 2k box fits per tested box instead of 2,
+        to find cuts that the projection measure ranks lower (the paper's bunny ear).
+    :param max_boxes: cap on the number of leaves, or None. A split that would take the number
+        of kept leaves above it is refused (``stop_reason='max_boxes'``); a split that only cuts
+        off noise does not add a leaf and is still allowed.
+    :param seed: passed to every MVBB fit, so the same input and seed give the same result.
+    :param grid_cells: grid cells per box axis for the cut positions (>= 2); see
+        :data:`mvbb_ros.geometry.decomposition.split.DEFAULT_GRID_CELLS`.
+    :param order: ``'volume'`` (default), ``'gain'``, ``'breadth'`` or ``'depth'``; see Processing
+        order.
+    :param min_thickness: a floor on the thickness of the boxes a split may make, in the
+        points' units; 0 (the paper) has none. Cuts that leave a part thinner than it along the
+        cut axis are not candidates, and a split whose fitted child box would still be thinner
+        than it is refused (``stop_reason='thin'``). On single sensor views the paper's gain
+        peels plates of sensor thickness off a surface; the floor keeps boxes at least as thick
+        as the sensor can resolve (``docs/single_views.md``).
+    :return: the decomposition: the tree (``nodes``, ``root``), the leaves in node order with
+        their point indices, the dropped points and the settings.
+    :raises ValueError: for an empty point array, a shape other than (N, 3), non-finite
+        coordinates or an invalid setting; the message says which.
+    """
+    settings = DecompositionSettings(
+        gain_threshold=gain_threshold,
+        min_points=min_points,
+        split_measure=split_measure,
+        rescore_cuts=rescore_cuts,
+        max_boxes=max_boxes,
+        seed=seed,
+        grid_cells=grid_cells,
+        order=order,
+        min_thickness=min_thickness,
+    )
+    pts = _validated_points(points)
+    root = _Draft(
+        box=minimum_bounding_box(pts, seed=settings.seed, **ROOT_SEARCH),
+        point_indices=np.arange(len(pts), dtype=np.intp),
+        parent=None,
+        depth=0,
+    )
+    drafts = [root]
+    if len(pts) < settings.min_points:
+        root.dropped = True
+        root.stop_reason = 'dropped'
+        return _finish(pts, drafts, settings)
+
+    leaf_volumes: dict[int, float] = {0: root.box.volume}
+    splits: dict[int, _Split | None] = {}
+    waiting = _Waiting(settings.order)
+
+    def enqueue(indices: list[int]) -> None:
+        entries = []
+        for i in indices:
+            if settings.order == 'gain':
+                # Best first needs every leaf's best split up front (each is fitted once anyway).
+                splits[i] = _best_split(pts, drafts[i], settings, fit_parts=True)
+                priority = _reduction(drafts[i], splits[i])
+            else:
+                priority = drafts[i].box.volume
+            entries.append((i, priority))
+        waiting.push_all(entries)
+
+    enqueue([0])
+    while waiting:
+        index = waiting.pop()
+        draft = drafts[index]
+        others = _others(index, leaf_volumes)
+        if index in splits:
+            split = splits.pop(index)
+        else:
+            may_pass = _may_pass(draft, others, settings.gain_threshold)
+            split = _best_split(pts, draft, settings, fit_parts=may_pass, others=others)
+        if split is None:
+            draft.stop_reason = 'no_cut'
+            continue
+        gain = _record_gain(draft, split, others)
+        kept = [len(part) >= settings.min_points for part in split.parts]
+        if not gain < settings.gain_threshold:
+            draft.stop_reason = 'gain'
+            if settings.order == 'gain':
+                # Best first: every other waiting split gains less, so each is refused too.
+                while waiting:
+                    other = waiting.pop()
+                    other_split = splits[other]
+                    if other_split is None:
+                        drafts[other].stop_reason = 'no_cut'
+                    else:
+                        _record_gain(drafts[other], other_split, _others(other, leaf_volumes))
+                        drafts[other].stop_reason = 'gain'
+            continue
+        if not any(kept):
+            draft.stop_reason = 'noise'
+            continue
+        assert split.boxes is not None, 'a split that passes eq. 2 has fitted parts'
+        if any(
+            keep and float(np.min(box.extents)) < settings.min_thickness
+            for keep, box in zip(kept, split.boxes, strict=True)
+        ):
+            draft.stop_reason = 'thin'
+            continue
+        leaves_after = len(leaf_volumes) - 1 + sum(kept)
+        if settings.max_boxes is not None and leaves_after > settings.max_boxes:
+            draft.stop_reason = 'max_boxes'
+            continue
+        draft.cut = split.cut
+        del leaf_volumes[index]
+        children = []
+        for part, box, keep in zip(split.parts, split.boxes, kept, strict=True):
+            child = _Draft(box=box, point_indices=part, parent=index, depth=draft.depth + 1)
+            children.append(len(drafts))
+            drafts.append(child)
+            if keep:
+                leaf_volumes[children[-1]] = box.volume
+            else:
+                child.dropped = True
+                child.stop_reason = 'dropped'
+        draft.children = tuple(children)
+        enqueue([i for i in children if i in leaf_volumes])
+    return _finish(pts, drafts, settings)
+
+
+def _finish(
+    points: NDArray[np.float64], drafts: list[_Draft], settings: DecompositionSettings
+) -> Decomposition:
+    """Freeze the drafts into the result."""
+    nodes = []
+    for index, draft in enumerate(drafts):
+        indices = np.array(draft.point_indices, dtype=np.intp)
+        indices.setflags(write=False)
+        nodes.append(
+            DecompositionNode(
+                index=index,
+                box=draft.box,
+                point_indices=indices,
+                parent=draft.parent,
+                children=draft.children,
+                cut=draft.cut,
+                tested_cut=draft.tested_cut,
+                theta=draft.theta,
+                gain=draft.gain,
+                depth=draft.depth,
+                dropped=draft.dropped,
+                stop_reason=draft.stop_reason,
+            )
+        )
+    return Decomposition(points=points, nodes=tuple(nodes), settings=settings)

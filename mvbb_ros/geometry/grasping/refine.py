@@ -1,0 +1,688 @@
+"""
+Grasps checked, refined and scored on the points: the paper's face hypotheses as seeds.
+
+The paper's hypotheses (:func:`~mvbb_ros.geometry.grasping.hypotheses.grasp_hypotheses`) approach a
+box face centre; on a curved or partly seen object that centre rarely gives two antipodal contacts.
+:func:`refine_grasps` tries each seed, slid over its face and rolled a little, and more
+candidates closing along every box axis (approaching along the other axes, from above and from
+the sensor), on each object's surface (:mod:`mvbb_ros.geometry.grasping.surface`) with the pad
+gripper of :mod:`mvbb_ros.geometry.grasping.contacts`; it keeps the feasible approaches (none from
+below, none from the far side), scores what holds by its quality over small pose errors and how
+near its contacts' line passes the object's centre, with the task strategy's preference, and drops
+repeats. :func:`rescore_grasp` checks a previous frame's grasp
+on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
+``docs/grasp_rules.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+import math
+
+from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
+from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.grasping.contacts import (
+    COL_CENTER,
+    COL_DEPTH,
+    COL_FIRST,
+    COL_QUALITY,
+    COL_TIP,
+    COL_VALID,
+    COL_WIDTH,
+    evaluate_lines,
+    EVALUATION_COLUMNS,
+)
+from mvbb_ros.geometry.grasping.hypotheses import FAR_SIDE_MARGIN_DEG, Grasp, gripper_quaternions
+from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
+from mvbb_ros.geometry.grasping.surface import SurfaceModel
+import numba as nb
+import numpy as np
+
+#: Slides of the grasp centre over the face, as fractions of the face's extent across the pads.
+SLIDES: tuple[float, ...] = (-0.3, -0.15, 0.0, 0.15, 0.3)
+#: Approaches per closing axis, evenly turned about it from the next box axis (4: the faces).
+APPROACHES_PER_AXIS = 12
+#: Rolls of the closing direction about the approach, degrees.
+ROLLS: tuple[float, ...] = (-20.0, 0.0, 20.0)
+#: Two grasps are the same (the list keeps the better) within this share of the pad size ...
+SAME_PADS = 0.5
+#: ... and this angle between their hand frames (a half turn about the approach is the same).
+SAME_ANGLE_DEG = 15.0
+
+
+@nb.njit(
+    'boolean[:](float64[:, :], float64[:, :], float64[:, :], float64, float64, int64)',
+    cache=True,
+)
+def _distinct(
+    centers: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    distance: float,
+    cos_angle: float,
+    limit: int,
+) -> BoolArray:
+    """
+    Keep, in order, each grasp that is not the same as one kept before it (at most `limit`).
+
+    The same: centres within `distance`, approaches within the angle, closing lines within it
+    (either sense: a half turn about the approach is the same hand).
+    """
+    count = centers.shape[0]
+    keep = np.zeros(count, dtype=np.bool_)
+    kept = np.empty(count, dtype=np.int64)
+    size = 0
+    squared = distance * distance
+    for i in range(count):
+        if size >= limit:
+            break
+        same = False
+        for m in range(size):
+            j = kept[m]
+            dx = centers[i, 0] - centers[j, 0]
+            dy = centers[i, 1] - centers[j, 1]
+            dz = centers[i, 2] - centers[j, 2]
+            if dx * dx + dy * dy + dz * dz > squared:
+                continue
+            along = (
+                approaches[i, 0] * approaches[j, 0]
+                + approaches[i, 1] * approaches[j, 1]
+                + approaches[i, 2] * approaches[j, 2]
+            )
+            across = (
+                closings[i, 0] * closings[j, 0]
+                + closings[i, 1] * closings[j, 1]
+                + closings[i, 2] * closings[j, 2]
+            )
+            if along >= cos_angle and abs(across) >= cos_angle:
+                same = True
+                break
+        if not same:
+            keep[i] = True
+            kept[size] = i
+            size += 1
+    return keep
+
+
+# Candidates --------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Candidates:
+    """Candidate grasp lines: origin, approach, closing, box, face and roll (seeds: -1 = none)."""
+
+    origins: list[FloatArray] = field(default_factory=list)
+    approaches: list[FloatArray] = field(default_factory=list)
+    closings: list[FloatArray] = field(default_factory=list)
+    boxes: list[IndexArray] = field(default_factory=list)
+
+    def add(
+        self, origins: FloatArray, approaches: FloatArray, closings: FloatArray, box: int
+    ) -> None:
+        """Add rows (broadcast to the origins' count)."""
+        count = len(origins)
+        self.origins.append(origins)
+        self.approaches.append(np.broadcast_to(approaches, (count, 3)))
+        self.closings.append(np.broadcast_to(closings, (count, 3)))
+        self.boxes.append(np.full(count, box, dtype=np.intp))
+
+    def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, IndexArray]:
+        """Return (origins, approaches, closings, boxes) as contiguous arrays."""
+        if not self.origins:
+            empty = np.zeros((0, 3))
+            return empty, empty, empty, np.zeros(0, dtype=np.intp)
+        return (
+            np.ascontiguousarray(np.concatenate(self.origins)),
+            np.ascontiguousarray(np.concatenate(self.approaches)),
+            np.ascontiguousarray(np.concatenate(self.closings)),
+            np.concatenate(self.boxes),
+        )
+
+
+def _unit_rows(vectors: FloatArray) -> FloatArray:
+    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return vectors / np.where(norms > 0.0, norms, 1.0)
+
+
+def _frames(box: Box, up: FloatArray | None, view: FloatArray | None) -> list[tuple]:
+    """
+    Return the (approach, closing) pairs of one box: closing along each box axis.
+
+    Approaches: along the other two axes, both senses (the paper's faces), then from above
+    (against `up`) and along the viewing direction `view`, each made perpendicular to the
+    closing axis (skipped when nearly parallel to it).
+    """
+    axes = box.rotation.T
+    pairs = []
+    for k in range(3):
+        closing = axes[k]
+        first, second = axes[(k + 1) % 3], axes[(k + 2) % 3]
+        for angle in np.deg2rad(np.arange(0.0, 360.0, 360.0 / APPROACHES_PER_AXIS)):
+            pairs.append((math.cos(angle) * first + math.sin(angle) * second, closing))
+        for direction in (None if up is None else -up, view):
+            if direction is None:
+                continue
+            flat = direction - (direction @ closing) * closing
+            norm = float(np.linalg.norm(flat))
+            if norm >= 0.3:
+                pairs.append((flat / norm, closing))
+    return pairs
+
+
+def _box_candidates(
+    boxes: Sequence[Box], up: FloatArray | None, views: Sequence[FloatArray | None], pad: float
+) -> _Candidates:
+    """Return every box's candidate lines: frames x rolls x slides across the pads."""
+    out = _Candidates()
+    rolls = np.deg2rad(np.array(ROLLS))
+    slides = np.array(SLIDES)
+    for index, box in enumerate(boxes):
+        pairs = _frames(box, up, views[index])
+        approaches = np.array([approach for approach, _ in pairs])  # (P, 3)
+        closings = np.array([closing for _, closing in pairs])
+        sides = cross(approaches, closings)
+        # (P, R, 3): each closing rolled about its approach, and the side axis of each roll.
+        turned = (
+            np.cos(rolls)[None, :, None] * closings[:, None, :]
+            + np.sin(rolls)[None, :, None] * sides[:, None, :]
+        )
+        across = cross(approaches[:, None, :], turned)
+        reach = np.abs(across @ box.rotation) @ box.extents  # (P, R) extent across the pads
+        offsets = slides * np.maximum(reach - pad, 0.0)[:, :, None]  # (P, R, S)
+        origins = box.center + offsets[..., None] * across[:, :, None, :]  # (P, R, S, 3)
+        count = origins.shape[1] * origins.shape[2]
+        out.add(
+            origins.reshape(-1, 3),
+            np.repeat(approaches, count, axis=0),
+            np.repeat(turned.reshape(-1, 3), len(slides), axis=0),
+            index,
+        )
+    return out
+
+
+def _seed_candidates(seeds: Sequence[Grasp], boxes: Sequence[Box], pad: float) -> _Candidates:
+    """Return the seeds' own lines (through their face centres), one sense per closing line."""
+    out = _Candidates()
+    for seed in seeds:
+        if seed.roll_deg >= 180:  # the half turn closes on the same line
+            continue
+        box = boxes[seed.box_index]
+        out.add(box.center[None, :], seed.approach, seed.closing, seed.box_index)
+    return out
+
+
+# The stage ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class RefinedGrasps:
+    """
+    The refinement's answer for one cloud.
+
+    :ivar grasps: the grasps, best first (the first is the one to execute).
+    :ivar candidates: how many candidate lines were tried.
+    :ivar holding: how many of them close on the points with friction.
+    :ivar kept_previous: whether the previous frame's top grasp stayed on top (hysteresis).
+    """
+
+    grasps: list[Grasp]
+    candidates: int = 0
+    holding: int = 0
+    kept_previous: bool = False
+
+
+def _feasible(
+    approaches: FloatArray, objects: IndexArray, models: Sequence[SurfaceModel], view: GraspView
+) -> BoolArray:
+    """Tell which approaches are allowed: not from below (with up), not from the far side."""
+    keep = np.ones(len(approaches), dtype=bool)
+    if view.up is not None:
+        limit = math.sin(math.radians(view.max_approach_elevation_deg))
+        keep &= approaches @ view.up <= limit + 1e-12
+    if not view.far_side and view.viewpoint is not None:
+        centers = np.array([model.center for model in models])[objects]
+        sight = _unit_rows(centers - view.viewpoint)
+        margin = math.sin(math.radians(FAR_SIDE_MARGIN_DEG))
+        keep &= np.einsum('ij,ij->i', approaches, sight) >= margin
+    return keep
+
+
+def _faces_and_rolls(
+    boxes: Sequence[Box], box_index: IndexArray, approaches: FloatArray, closings: FloatArray
+) -> tuple[IndexArray, IndexArray]:
+    """Return each line's box face most opposed to its approach and its closing's roll (deg)."""
+    faces = np.zeros(len(box_index), dtype=np.intp)
+    rolls = np.zeros(len(box_index), dtype=np.intp)
+    for number in np.unique(box_index):
+        mine = np.flatnonzero(box_index == number)
+        box = boxes[int(number)]
+        normals = box.face_normals()
+        face = np.argmin(approaches[mine] @ normals.T, axis=1)
+        edges = box.rotation[:, (face // 2 + 1) % 3].T  # (M, 3)
+        turned = cross(-normals[face], edges)
+        angle = np.degrees(
+            np.arctan2(
+                np.einsum('ij,ij->i', closings[mine], turned),
+                np.einsum('ij,ij->i', closings[mine], edges),
+            )
+        )
+        faces[mine] = face
+        rolls[mine] = np.round(angle).astype(np.intp) % 360
+    return faces, rolls
+
+
+def _grasps(
+    rows: FloatArray,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    boxes: Sequence[Box],
+    box_index: IndexArray,
+    objects: IndexArray,
+    scores: FloatArray,
+    settings: RefinementSettings,
+    view: GraspView,
+) -> list[Grasp]:
+    """Return the grasps of evaluated rows (valid ones), in the given order."""
+    quaternions = read_only(gripper_quaternions(approaches, closings, view.approach_axis))
+    faces, rolls = _faces_and_rolls(boxes, box_index, approaches, closings)
+    # Whole columns at once; each grasp holds read-only rows of these arrays.
+    positions = read_only(
+        origins
+        + rows[:, COL_CENTER, None] * closings
+        + (rows[:, COL_FIRST, None] - view.standoff) * approaches
+    )
+    approaches, closings = read_only(approaches), read_only(closings)
+    widths = np.minimum(rows[:, COL_WIDTH] + settings.width_margin, view.gripper_max_width)
+    depths = view.standoff + rows[:, COL_DEPTH]
+    return [
+        Grasp(
+            position=positions[i],
+            quaternion=quaternions[i],
+            approach=approaches[i],
+            closing=closings[i],
+            width=width,
+            box_index=box,
+            face=face,
+            roll_deg=roll,
+            score=score,
+            object_index=number,
+            depth=depth,
+        )
+        for i, (width, box, face, roll, score, number, depth) in enumerate(
+            zip(
+                widths.tolist(),
+                box_index.tolist(),
+                faces.tolist(),
+                rolls.tolist(),
+                scores.tolist(),
+                objects.tolist(),
+                depths.tolist(),
+                strict=True,
+            )
+        )
+    ]
+
+
+def _holding_boxes(
+    points: FloatArray, objects: IndexArray, boxes: Sequence[Box], box_objects: IndexArray
+) -> IndexArray:
+    """
+    Return, per grasp point (G, 3) of object `objects[g]`, the leaf box of that object holding it.
+
+    A grasp's line comes from one box but slides along its approach to the first contact, which
+    may lie on another box of the object: the grasp belongs to the box its closing point is in
+    (the one it is deepest in where leaves overlap), else to the nearest (distance to the box).
+    Ties go to the lower box index.
+    """
+    fit = np.full((len(points), len(boxes)), -np.inf)
+    for index, box in enumerate(boxes):
+        mine = np.flatnonzero(objects == box_objects[index])
+        if not len(mine):
+            continue
+        local = np.abs(box.to_local(points[mine]))
+        outside = np.linalg.norm(np.maximum(local - box.half_extents, 0.0), axis=1)
+        inside = np.min(box.half_extents - local, axis=1)
+        fit[mine, index] = np.where(outside > 0.0, -outside, inside)
+    return np.argmax(fit, axis=1)
+
+
+def _box_preferences(boxes: Sequence[Box], view: GraspView) -> FloatArray:
+    """
+    Return each box's preference in [0, 1] under the task strategy, as a ratio to the best box.
+
+    Largest: its volume over the largest; smallest: the smallest volume over its own;
+    outermost: its centre's distance from the boxes' volume-weighted centroid over the
+    largest such distance; nearest: the nearest box centre's distance from the viewpoint over
+    its own. Ratios (unlike the paper's min-max ranking) change little when the boxes change a
+    little from frame to frame.
+    """
+    if not boxes:
+        return np.zeros(0)
+    volumes = np.array([box.volume for box in boxes])
+    centers = np.array([box.center for box in boxes])
+    tiny = 1e-300
+    if view.strategy == 'largest':
+        ratio = volumes / max(float(volumes.max()), tiny)
+    elif view.strategy == 'smallest':
+        ratio = float(volumes.min()) / np.maximum(volumes, tiny)
+    elif view.strategy == 'outermost':
+        weights = volumes if volumes.sum() > 0.0 else np.ones(len(boxes))
+        centroid = (centers * weights[:, None]).sum(axis=0) / weights.sum()
+        distance = np.linalg.norm(centers - centroid, axis=1)
+        ratio = distance / max(float(distance.max()), tiny)
+    else:
+        origin = np.zeros(3) if view.viewpoint is None else view.viewpoint
+        distance = np.linalg.norm(centers - origin, axis=1)
+        ratio = float(distance.min()) / np.maximum(distance, tiny)
+    return np.clip(np.where(np.isfinite(ratio), ratio, 1.0), 0.0, 1.0)
+
+
+#: The previous grasp is re-scored at these slides across the pads (fractions of the pad size)
+#: and rolls (degrees), all within what counts as the same grasp; the best of them is kept.
+RESCORE_SLIDES: tuple[float, ...] = (-0.25, -0.125, 0.0, 0.125, 0.25)
+RESCORE_ROLLS: tuple[float, ...] = (-10.0, 0.0, 10.0)
+
+
+def rescore_grasp(
+    grasp: Grasp,
+    boxes: Sequence[Box],
+    box_objects: Sequence[int],
+    models: Sequence[SurfaceModel],
+    settings: RefinementSettings,
+    view: GraspView,
+) -> Grasp | None:
+    """
+    Check a grasp (a previous frame's) on new points: the same grasp, refined a little again.
+
+    The grasp's line is tried as it is and slid across the pads by up to a quarter pad
+    (:data:`RESCORE_SLIDES`) and rolled by up to 10 degrees (:data:`RESCORE_ROLLS`), all of which
+    a robot takes for the same grasp; each is centred again between what the fingers pass and
+    stops again at the new first contact, on every object's surface. Where the fingertips
+    close must stay within one pad size of where they closed before (an object that moved
+    further is grasped anew). The best that holds is returned with the width and score of the
+    new points; its box is the box of its object that holds its closing point
+    (:func:`_holding_boxes`).
+
+    :return: the re-scored grasp, or None when it is not feasible or does not hold any more.
+    """
+    if not models:
+        return None
+    approach = np.asarray(grasp.approach, dtype=np.float64)
+    closing = np.asarray(grasp.closing, dtype=np.float64)
+    side = cross(approach, closing)
+    rolls = np.deg2rad(np.array(RESCORE_ROLLS))
+    turned = np.cos(rolls)[:, None] * closing + np.sin(rolls)[:, None] * side
+    offsets = np.array(RESCORE_SLIDES) * settings.pad_size
+    origins = np.asarray(grasp.position, dtype=np.float64) + np.repeat(
+        offsets[None, :, None] * cross(approach, turned)[:, None, :], 1, axis=0
+    ).reshape(-1, 3)
+    closings = np.repeat(turned, len(offsets), axis=0)
+    approaches = np.broadcast_to(approach, closings.shape)
+    before = np.asarray(grasp.position, dtype=np.float64) + grasp.depth * approach
+    best: tuple[float, int, int, FloatArray] | None = None
+    for number, model in enumerate(models):
+        if not _feasible(approach[None, :], np.array([number]), models, view)[0]:
+            continue
+        rows = evaluate_lines(model, origins, approaches, closings, settings, view)
+        tips = (
+            origins
+            + rows[:, COL_TIP][:, None] * approaches
+            + rows[:, COL_CENTER][:, None] * closings
+        )
+        near = np.linalg.norm(tips - before, axis=1) <= settings.pad_size
+        quality = np.where((rows[:, COL_VALID] > 0.0) & near, rows[:, COL_QUALITY], -1.0)
+        pick = int(np.argmax(quality))
+        if quality[pick] >= 0.0 and (best is None or quality[pick] > best[0]):
+            best = (float(quality[pick]), number, pick, rows[pick])
+    if best is None:
+        return None
+    _, number, pick, row = best
+    origin, closing = origins[pick], closings[pick]
+    row = row.copy()
+    row[COL_QUALITY] = _robust_quality(
+        models,
+        np.array([number]),
+        origin[None, :],
+        approach[None, :],
+        closing[None, :],
+        row[None, :],
+        settings,
+        view,
+    )[0]
+    tip = origin + row[COL_TIP] * approach + row[COL_CENTER] * closing
+    box_numbers = np.asarray(box_objects, dtype=np.intp)
+    if not np.any(box_numbers == number):
+        return None
+    box = int(_holding_boxes(tip[None, :], np.array([number]), boxes, box_numbers)[0])
+    preference = _box_preferences(boxes, view)[box]
+    score = _score(np.array([row[COL_QUALITY]]), np.array([preference]), settings)
+    return _grasps(
+        row[None, :],
+        origin[None, :],
+        approach[None, :],
+        closing[None, :],
+        boxes,
+        np.array([box]),
+        np.array([number]),
+        score,
+        settings,
+        view,
+    )[0]
+
+
+#: A grasp's quality is the mean over its line and these neighbours (a robot's pose error):
+#: slid across the pads by this share of the pad size, and rolled by this angle (degrees).
+ROBUST_SLIDE = 0.25
+ROBUST_ROLL_DEG = 10.0
+#: Weight of the centring (closing line near the object's centre) in a grasp's quality.
+CENTRING_WEIGHT = 0.3
+
+
+def _neighbours(
+    origins: FloatArray, approaches: FloatArray, closings: FloatArray, pad: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return each line's four neighbours (slid both ways, rolled both ways), (4 G, 3) each."""
+    side = cross(approaches, closings)
+    roll = math.radians(ROBUST_ROLL_DEG)
+    shift = ROBUST_SLIDE * pad * side
+    out_origins = np.concatenate([origins + shift, origins - shift, origins, origins])
+    rolled = [math.cos(roll) * closings + sign * math.sin(roll) * side for sign in (1.0, -1.0)]
+    out_closings = np.concatenate([closings, closings, *rolled])
+    return out_origins, np.concatenate([approaches] * 4), out_closings
+
+
+def _robust_quality(
+    models: Sequence[SurfaceModel],
+    objects: IndexArray,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    rows: FloatArray,
+    settings: RefinementSettings,
+    view: GraspView,
+) -> FloatArray:
+    """
+    Return each line's quality over pose errors, weighed with its centring.
+
+    `rows` are the lines' own evaluations (:func:`evaluate_lines`).
+
+    The contact quality is the mean over the line and its neighbours (0 where not held); the
+    centring (:func:`_centring`) weighs :data:`CENTRING_WEIGHT`.
+
+    The neighbours (:func:`_neighbours`) are what a robot's pose error of a few millimetres and
+    degrees makes of the grasp; a grasp at the edge of holding scores less than one in the
+    middle of a region that holds, and the score varies less with the sensor's noise.
+    """
+    total = np.zeros(len(origins))
+    for number, model in enumerate(models):
+        mine = np.flatnonzero(objects == number)
+        if not len(mine):
+            continue
+        lines = (origins[mine], approaches[mine], closings[mine])
+        near = evaluate_lines(model, *_neighbours(*lines, settings.pad_size), settings, view)
+        quality = np.concatenate([rows[mine, COL_QUALITY], near[:, COL_QUALITY]])
+        held = quality.reshape(5, len(mine)).mean(axis=0)
+        centring = _centring(model, *lines, rows[mine])
+        total[mine] = (1.0 - CENTRING_WEIGHT) * held + CENTRING_WEIGHT * centring
+    return total
+
+
+def _centring(
+    model: SurfaceModel,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    rows: FloatArray,
+) -> FloatArray:
+    """
+    Return how near each closing line passes the object's centre, in [0, 1].
+
+    1 - the distance from the centroid of the surface model's points (observed and estimated)
+    to the line between the contacts, over the largest distance of a point from that centroid.
+    Gravity and a pushing finger twist the object about its centre of mass less the nearer
+    the contacts' line passes it (the torques in the grasp's wrench space).
+    """
+    if not len(model.points):
+        return np.zeros(len(origins))
+    centroid = model.points.mean(axis=0)
+    reach = float(np.linalg.norm(model.points - centroid, axis=1).max())
+    contacts = (
+        origins + rows[:, COL_TIP][:, None] * approaches + rows[:, COL_CENTER][:, None] * closings
+    )
+    offset = centroid - contacts
+    across = offset - np.einsum('ij,ij->i', offset, closings)[:, None] * closings
+    distance = np.linalg.norm(across, axis=1)
+    return np.clip(1.0 - distance / max(reach, 1e-12), 0.0, 1.0)
+
+
+def _score(
+    quality: FloatArray, preference: FloatArray, settings: RefinementSettings
+) -> FloatArray:
+    """Return the score in [0, 1]: the quality, with the strategy's preference weighed in."""
+    weight = settings.preference
+    return np.clip((1.0 - weight) * quality + weight * preference, 0.0, 1.0)
+
+
+def refine_grasps(
+    seeds: Sequence[Grasp],
+    boxes: Sequence[Box],
+    box_objects: Sequence[int],
+    models: Sequence[SurfaceModel],
+    settings: RefinementSettings,
+    view: GraspView,
+    previous: Grasp | None = None,
+) -> RefinedGrasps:
+    """
+    Return grasps checked and scored on the points, best first (the rules: docs/grasp_rules.md).
+
+    :param seeds: the paper's hypotheses on `boxes` (:func:`grasp_hypotheses`).
+    :param boxes: every object's leaf boxes (the seeds' ``box_index`` indexes them).
+    :param box_objects: the object (index into `models`) of each box.
+    :param models: each object's surface (:func:`surface_model`).
+    :param settings: the refinement's settings.
+    :param view: the gripper, the view and the filters.
+    :param previous: the previous frame's top grasp (same frame of reference), or None; it
+        stays on top while it holds and scores within ``settings.hysteresis`` of the best.
+    :return: the grasps and what was tried.
+    """
+    if not boxes or not models:
+        return RefinedGrasps([])
+    objects_of_boxes = np.asarray(box_objects, dtype=np.intp)
+    views: list[FloatArray | None] = []
+    for number in objects_of_boxes:
+        sight = None
+        if view.viewpoint is not None:
+            sight = models[number].center - view.viewpoint
+            norm = float(np.linalg.norm(sight))
+            sight = sight / norm if norm > 0.0 else None
+        views.append(sight)
+    candidates = _seed_candidates(seeds, boxes, settings.pad_size)
+    generated = _box_candidates(boxes, view.up, views, settings.pad_size)
+    for name in ('origins', 'approaches', 'closings', 'boxes'):
+        getattr(candidates, name).extend(getattr(generated, name))
+    origins, approaches, closings, box_index = candidates.arrays()
+    objects = objects_of_boxes[box_index]
+    keep = _feasible(approaches, objects, models, view)
+    origins, approaches, closings = origins[keep], approaches[keep], closings[keep]
+    box_index, objects = box_index[keep], objects[keep]
+    rows = np.zeros((len(origins), EVALUATION_COLUMNS))
+    for number, model in enumerate(models):
+        mine = np.flatnonzero(objects == number)
+        if len(mine):
+            rows[mine] = evaluate_lines(
+                model, origins[mine], approaches[mine], closings[mine], settings, view
+            )
+    valid = np.flatnonzero(rows[:, COL_VALID] > 0.0)
+    # Where each valid grasp closes, and the box of its object that holds that point.
+    closes = (
+        origins[valid]
+        + rows[valid, COL_TIP][:, None] * approaches[valid]
+        + rows[valid, COL_CENTER][:, None] * closings[valid]
+    )
+    box_index[valid] = _holding_boxes(closes, objects[valid], boxes, objects_of_boxes)
+    quality = _robust_quality(
+        models,
+        objects[valid],
+        origins[valid],
+        approaches[valid],
+        closings[valid],
+        rows[valid],
+        settings,
+        view,
+    )
+    rows[valid, COL_QUALITY] = quality
+    preference = _box_preferences(boxes, view)[box_index[valid]]
+    scores = _score(quality, preference, settings)
+    ranked = np.argsort(-scores, kind='stable')
+    order, scores, centers = valid[ranked], scores[ranked], closes[ranked]
+    limit = view.max_grasps if view.max_grasps > 0 else len(order)
+    distinct = _distinct(
+        np.ascontiguousarray(centers),
+        np.ascontiguousarray(approaches[order]),
+        np.ascontiguousarray(closings[order]),
+        SAME_PADS * settings.pad_size,
+        math.cos(math.radians(SAME_ANGLE_DEG)),
+        limit + 1,
+    )
+    order, scores = order[distinct], scores[distinct]
+    grasps = _grasps(
+        rows[order],
+        origins[order],
+        approaches[order],
+        closings[order],
+        boxes,
+        box_index[order],
+        objects[order],
+        scores,
+        settings,
+        view,
+    )
+    result = RefinedGrasps(grasps, candidates=len(origins), holding=len(valid))
+    if previous is not None:
+        kept = rescore_grasp(previous, boxes, box_objects, models, settings, view)
+        best = grasps[0].score if grasps else -math.inf
+        if kept is not None and kept.score + settings.hysteresis >= best:
+            rest = [g for g in grasps if not _same(g, kept, settings)]
+            result.grasps = [kept, *rest]
+            result.kept_previous = True
+    result.grasps = result.grasps[:limit]
+    return result
+
+
+def _same(first: Grasp, second: Grasp, settings: RefinementSettings) -> bool:
+    """Tell whether two grasps are the same hand pose (the rule of :func:`_distinct`)."""
+    tips = [np.asarray(g.position) + g.depth * np.asarray(g.approach) for g in (first, second)]
+    if float(np.linalg.norm(tips[0] - tips[1])) > SAME_PADS * settings.pad_size:
+        return False
+    cos = math.cos(math.radians(SAME_ANGLE_DEG))
+    along = float(np.dot(first.approach, second.approach))
+    across = abs(float(np.dot(first.closing, second.closing)))
+    return along >= cos and across >= cos
+
+
+def warm_up() -> None:
+    """Run the module's kernel once (see :mod:`mvbb_ros.kernels`)."""
+    lines = np.eye(3)
+    _distinct(lines, lines, lines, 0.01, 0.9, 3)

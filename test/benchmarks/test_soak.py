@@ -1,0 +1,47 @@
+"""benchmarks/soak.py: how it measures the node's memory growth (the soak is a benchmark)."""
+
+from __future__ import annotations
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+import numpy as np
+import pytest
+from support.data import load_benchmark
+
+MIB = 2**20
+
+
+@pytest.fixture(scope='module')
+def soak():
+    return load_benchmark('soak')
+
+
+def _figures(soak, memory):
+    return soak.Figures(memory[-1][0], 1, np.array([1.0]), memory, 0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.floats(300.0, 400.0),
+    st.lists(st.floats(0.0, 0.1), min_size=19, max_size=19),
+    st.floats(0.06, 0.5),
+)
+def test_a_leak_shows_as_growth_and_the_allocators_dips_do_not(soak, steady, dips, leak):
+    """Ten minutes sampled every 30 s: warming up, then steady with dips, or leaking."""
+    times = [30.0 * k for k in range(21)]
+    warming = [(0.0, 0.7 * steady * MIB), (30.0, 0.9 * steady * MIB)]
+    flat = [(t, steady * (1.0 - dip) * MIB) for t, dip in zip(times[2:], dips, strict=True)]
+    # The peaks are what the node holds; glibc's trims show as samples below them.
+    flat[1] = (flat[1][0], steady * MIB)
+    flat[-2] = (flat[-2][0], steady * MIB)
+    assert abs(_figures(soak, warming + flat).growth) < 0.01
+    leaking = [(t, steady * (1.0 + leak * (t - 60.0) / 540.0) * MIB) for t in times[2:]]
+    # Three quarters of a steady leak show (the first and the last quarter's peaks).
+    assert _figures(soak, warming + leaking).growth == pytest.approx(0.75 * leak, rel=0.2)
+
+
+def test_a_short_run_warms_up_for_its_first_third(soak):
+    assert soak.warm_up_s(600.0) == soak.WARM_UP_S
+    assert soak.warm_up_s(60.0) == pytest.approx(20.0)
+    growing = [(0.0, 100.0 * MIB), (30.0, 100.0 * MIB), (60.0, 110.0 * MIB)]
+    assert _figures(soak, growing).growth == pytest.approx(0.10)

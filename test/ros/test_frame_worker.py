@@ -1,0 +1,135 @@
+"""The node's frames off the executor: services answer during a frame, work never queues up."""
+
+from __future__ import annotations
+
+import threading
+
+from mvbb_ros.ros.diagnostics import OverloadWatch
+from mvbb_ros.ros.encode import create_cloud_xyz
+import mvbb_ros.ros.node
+from mvbb_ros.ros.worker import FrameWorker
+import pytest
+from rcl_interfaces.srv import ListParameters, SetParameters
+from rclpy.parameter import Parameter
+from std_msgs.msg import Header
+from support.ros_graph import Graph
+from support.shapes import l_shape_points
+
+
+class Blocking:
+    """A frame function that waits for a release, recording what it was given."""
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.started = threading.Event()
+        self.calls: list[object] = []
+
+    def __call__(self, cloud: object) -> None:
+        self.calls.append(cloud)
+        self.started.set()
+        assert self.release.wait(30.0)
+
+
+def test_clouds_arriving_during_a_frame_replace_each_other_and_are_counted():
+    frame = Blocking()
+    worker = FrameWorker(frame)
+    try:
+        worker.submit('first')
+        assert frame.started.wait(10.0)
+        for name in ('second', 'third', 'fourth'):
+            worker.submit(name)
+        worker.again()  # a new cloud waits: it is processed with the new settings anyway
+        frame.release.set()
+        assert worker.wait_idle(10.0)
+        assert frame.calls == ['first', 'fourth']
+        assert worker.skipped == 2 and worker.merged == 1
+    finally:
+        frame.release.set()
+        worker.stop()
+
+
+def test_settings_changed_during_a_frame_give_one_reprocessing():
+    frame = Blocking()
+    worker = FrameWorker(frame)
+    try:
+        worker.submit('cloud')
+        assert frame.started.wait(10.0)
+        for _ in range(50):
+            worker.again()
+        frame.release.set()
+        assert worker.wait_idle(10.0)
+        assert frame.calls == ['cloud', None] and worker.merged == 49
+    finally:
+        frame.release.set()
+        worker.stop()
+
+
+def test_sustained_skipping_is_an_overload_and_a_burst_is_not():
+    now = [0.0]
+    watch = OverloadWatch(window_s=5.0, clock=lambda: now[0])
+    assert watch.update(0, 0) is None
+    now[0] = 1.0
+    assert watch.update(3, 2) is None  # too few clouds to judge
+    now[0] = 3.0
+    assert 'overloaded: 6 of the last 10 clouds' in watch.update(10, 6)
+    now[0] = 9.0
+    assert watch.update(40, 6) is None  # keeping up again
+
+
+def _cloud(sec: int):
+    header = Header(frame_id='camera')
+    header.stamp.sec = sec
+    return create_cloud_xyz(l_shape_points(), header=header)
+
+
+@pytest.mark.ros
+def test_services_answer_and_changes_merge_while_a_frame_is_processed(monkeypatch):
+    real_process_cloud = mvbb_ros.ros.node.process_cloud
+    release, started = threading.Event(), threading.Event()
+    calls = []
+
+    def slow_first(cloud, settings, **options):
+        calls.append(settings.decomposition.gain_threshold)
+        if len(calls) == 1:
+            started.set()
+            assert release.wait(30.0)
+        return real_process_cloud(cloud, settings, **options)
+
+    monkeypatch.setattr(mvbb_ros.ros.node, 'process_cloud', slow_first)
+    graph = Graph()
+    try:
+        publisher = graph.publisher()
+        assert graph.spin_until(lambda: publisher.get_subscription_count() > 0)
+        publisher.publish(_cloud(1))
+        assert graph.spin_until(started.is_set)
+        # The frame is still running: the parameter services answer all the same.
+        lister = graph.probe.create_client(ListParameters, '/decomposer/list_parameters')
+        setter = graph.probe.create_client(SetParameters, '/decomposer/set_parameters')
+        listed = lister.call_async(ListParameters.Request())
+        assert graph.spin_until(listed.done, timeout_s=10.0), 'no answer during a frame'
+        assert 'gain_threshold' in listed.result().result.names
+        for value in (0.90, 0.92, 0.95, 0.97):
+            request = SetParameters.Request(
+                parameters=[Parameter('gain_threshold', value=value).to_parameter_msg()]
+            )
+            future = setter.call_async(request)
+            assert graph.spin_until(future.done, timeout_s=10.0)
+            assert future.result().results[0].successful
+        received = graph.node.diagnostic_counts
+        for sec in (2, 3, 4):  # one at a time: the input keeps the last cloud only
+            before = received()['clouds_received']
+            publisher.publish(_cloud(sec))
+            assert graph.spin_until(lambda count=before: received()['clouds_received'] > count)
+        assert graph.node.frames.skipped == 2
+        assert not calls[1:], 'nothing else ran during the frame'
+        release.set()
+        assert graph.spin_until(lambda: graph.answer(4) is not None, timeout_s=30.0)
+        assert graph.spin_until(graph.node.frames.idle, timeout_s=30.0)
+        # The blocked frame, then the newest cloud with the last setting; the older clouds
+        # and the earlier changes were merged away.
+        assert calls[0] == 0.94 and calls[1:] == [0.97]
+        assert graph.answer(1) is not None and graph.answer(2) is None
+        assert received()['clouds_skipped_busy'] == 2
+    finally:
+        release.set()
+        graph.close()
