@@ -39,6 +39,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.pipeline.decode',
     'mvbb_ros.pipeline.filtering',
     'mvbb_ros.pipeline.outliers',
+    'mvbb_ros.pipeline.scene',
     'mvbb_ros.geometry.rectangle',
     'mvbb_ros.geometry.hull',
     'mvbb_ros.geometry.search',

@@ -15,6 +15,7 @@ from mvbb_ros.geometry.contacts import RefinementSettings
 from mvbb_ros.geometry.decomposition import DecompositionSettings
 from mvbb_ros.geometry.grasps import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.split import SPLIT_MEASURES
+from mvbb_ros.pipeline.scene import SceneSettings
 from mvbb_ros.pipeline.settings import (
     FilterSettings,
     NodeSettings,
@@ -51,6 +52,7 @@ def test_every_spec_sets_a_typed_field_of_a_stage():
     assert len(names) == len(set(names))
     assert list(STAGES.values()) == [
         FilterSettings,
+        SceneSettings,
         ViewSettings,
         DecompositionSettings,
         GraspSettings,

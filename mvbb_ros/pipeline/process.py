@@ -1,5 +1,5 @@
 """
-The per-cloud pipeline: decode, filter, objects, hidden side, decompose, grasp.
+The per-cloud pipeline: decode, filter, scene, objects, hidden side, decompose, grasp.
 
 ``docs/architecture.md`` follows one cloud through it.
 
@@ -11,7 +11,7 @@ message is read duck-typed (rclpy and rosbags messages both work).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 import time
 from typing import Any
 
@@ -26,6 +26,7 @@ from mvbb_ros.geometry.refine import refine_grasps, RefinedGrasps
 from mvbb_ros.geometry.surface import surface_model, SurfaceModel
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
+from mvbb_ros.pipeline.scene import find_scene, roi_mask, SupportPlane
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,7 +39,8 @@ class ObjectResult:
     One object of a cloud: its observed points, its estimated shape and its decomposition.
 
     :ivar index: the object's number in the cloud (0 is the largest).
-    :ivar point_indices: the object's points among the filtered points (sorted).
+    :ivar point_indices: the object's points among the filtered points (sorted; with a
+        support plane, among all filtered points, not only those standing on it).
     :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
         points are ``shape.points``, observed first.
     :ivar decomposition: the fit-and-split tree of ``shape.points``.
@@ -68,7 +70,10 @@ class PipelineResult:
     throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
     Boxes are numbered across objects: :attr:`leaves` lists every object's leaves in object
     order, and each grasp's ``box_index`` indexes it. `refinement` says what the refinement
-    tried (None when it is off).
+    tried (None when it is off). `support` is the plane the objects stand on (None when the
+    cloud is one segmented object, `support_note` says why); `up` the up direction the
+    completion and the grasps used and `up_source` where it came from (``'up_direction'``,
+    ``'support plane'`` or ``'none'``).
     """
 
     counts: FilterCounts
@@ -77,6 +82,10 @@ class PipelineResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     warning: str | None = None
     refinement: RefinedGrasps | None = None
+    support: SupportPlane | None = None
+    support_note: str | None = None
+    up: tuple[float, float, float] | None = None
+    up_source: str = 'none'
 
     @property
     def leaves(self) -> list[Box]:
@@ -224,16 +233,20 @@ def process_points(
     start = time.perf_counter()
     array = np.asarray(points)
     bounds = None if decoded is None else decoded.bounds
+    finite = None if decoded is None else decoded.finite
+    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance)
+    if near is not None:
+        # The region of interest first: a room-sized cloud shrinks before any filter.
+        array, bounds, finite = array[near], None, None
     reason = implausible_extent(array, bounds)
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
     filtered, counts = filter_points(
-        array,
-        bounds=bounds,
-        finite=None if decoded is None else decoded.finite,
-        **asdict(settings.filtering),
+        array, bounds=bounds, finite=finite, **asdict(settings.filtering)
     )
+    if near is not None:
+        counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
     timings['filter'] = (time.perf_counter() - start) * 1e3
     min_points = settings.decomposition.min_points
     if len(filtered) < min_points:
@@ -246,10 +259,43 @@ def process_points(
     view = settings.view
     start = time.perf_counter()
     spacing = point_spacing(filtered, settings.filtering.voxel_size)
+    scene = find_scene(
+        filtered,
+        settings.scene,
+        viewpoint=view.viewpoint,
+        up=view.up,
+        spacing=spacing,
+        min_points=min_points,
+    )
+    support = scene.support
+    up: ArrayLike | None = view.up
+    up_source = 'up_direction'
+    if up is None:
+        up, up_source = (None, 'none') if support is None else (support.normal, 'support plane')
+    standing = filtered if scene.kept is None else filtered[scene.kept]
+    timings['scene'] = (time.perf_counter() - start) * 1e3
+
+    def empty(warning: str | None) -> PipelineResult:
+        return PipelineResult(
+            counts=counts,
+            timings_ms=timings,
+            warning=warning,
+            support=support,
+            support_note=scene.reason,
+            up=None if up is None else _unit(up),
+            up_source=up_source,
+        )
+
+    if len(standing) < min_points:
+        return empty(
+            f'only {len(standing)} points stand on the support plane, fewer than '
+            f'min_points = {min_points}'
+        )
+    start = time.perf_counter()
     # A tolerance below the point spacing would cut every object into single points.
     tolerance = max(view.cluster_tolerance, CLUSTER_SPACINGS * spacing)
     groups = separate_objects(
-        filtered,
+        standing,
         tolerance if view.cluster_tolerance > 0.0 else 0.0,
         viewpoint=view.viewpoint,
         spacing=spacing,
@@ -257,35 +303,41 @@ def process_points(
     )
     timings['objects'] = (time.perf_counter() - start) * 1e3
     if not groups:
-        warning = f'no object of at least min_points = {min_points} points in the cloud'
-        return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
+        return empty(f'no object of at least min_points = {min_points} points in the cloud')
 
     objects = []
     timings['completion'] = timings['decompose'] = 0.0
     for index, members in enumerate(groups):
         start = time.perf_counter()
+        observed = standing[members]
         shape = complete_view(
-            filtered[members],
+            observed,
             method=view.completion,
             viewpoint=view.viewpoint,
-            up=view.up,
+            up=up,
             spacing=spacing,
+            floor=None if support is None or up is None else resting_floor(observed, support, up),
         )
         timings['completion'] += (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
         decomposition = decompose(shape.points, **asdict(settings.decomposition))
         timings['decompose'] += (time.perf_counter() - start) * 1e3
+        if scene.kept is not None:
+            members = scene.kept[members]
         objects.append(ObjectResult(index, members, shape, decomposition))
 
     start = time.perf_counter()
-    result = PipelineResult(counts=counts, objects=objects, timings_ms=timings)
+    result = empty(None)
+    result.objects = objects
     refining = settings.refinement.enabled
     options = asdict(settings.grasps)
     if refining:
         options['max_grasps'] = 0  # every hypothesis is a seed
+    if support is not None and options['support_plane'] is None:
+        options['support_plane'] = support.coefficients  # no approach through the table
     result.grasps = grasp_hypotheses(
         result.leaves,
-        up=view.up,
+        up=up,
         sensor_origin=view.viewpoint,
         object_indices=result.leaf_object_indices,
         **options,
@@ -293,14 +345,14 @@ def process_points(
     timings['grasps'] = (time.perf_counter() - start) * 1e3
     if refining:
         start = time.perf_counter()
-        models = [object_surface(item, spacing, view.up) for item in objects]
+        models = [object_surface(item, spacing, up) for item in objects]
         result.refinement = refine_grasps(
             result.grasps,
             result.leaves,
             result.leaf_object_indices,
             models,
             settings.refinement,
-            grasp_view(settings),
+            grasp_view(settings, up),
             previous,
         )
         result.grasps = result.refinement.grasps
@@ -308,13 +360,43 @@ def process_points(
     return result
 
 
-def grasp_view(settings: PipelineSettings) -> GraspView:
-    """Return what the refinement needs of the gripper and the view, from the settings."""
+def _unit(vector: ArrayLike) -> tuple[float, float, float]:
+    unit = np.asarray(vector, dtype=np.float64)
+    x, y, z = (unit / np.linalg.norm(unit)).tolist()
+    return x, y, z
+
+
+#: An object whose lowest point is at most this far above the support plane (metres) rests on
+#: it: its hidden side is filled down to the table.
+RESTING_GAP = 0.05
+
+
+def resting_floor(points: FloatArray, support: SupportPlane, up: ArrayLike) -> float | None:
+    """
+    Return the height along unit `up` of the table under `points`, or None when not resting.
+
+    Each point is taken straight down (along -`up`) to the support plane; the floor is the mean
+    height there, when the object's lowest point is within :data:`RESTING_GAP` of the plane.
+    """
+    heights = support.heights(points)
+    if float(heights.min()) > RESTING_GAP:
+        return None
+    unit = np.asarray(up, dtype=np.float64)
+    slope = float(support.normal @ unit)
+    if slope <= 0.1:
+        return None
+    return float(np.mean(points @ unit - heights / slope))
+
+
+def grasp_view(settings: PipelineSettings, up: ArrayLike | None) -> GraspView:
+    """
+    Return what the refinement needs of the gripper and the view, from the settings.
+
+    `up` is the up direction the pipeline uses (``up_direction``, else the support plane's
+    normal), or None.
+    """
     grasps, view = settings.grasps, settings.view
-    up = None
-    if view.up is not None:
-        up = np.asarray(view.up, dtype=np.float64)
-        up = up / np.linalg.norm(up)
+    up = None if up is None else np.asarray(_unit(up))
     return GraspView(
         gripper_max_width=grasps.gripper_max_width,
         standoff=grasps.standoff,
