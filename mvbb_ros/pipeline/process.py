@@ -26,7 +26,8 @@ from mvbb_ros.geometry.refine import refine_grasps, RefinedGrasps
 from mvbb_ros.geometry.surface import surface_model, SurfaceModel
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
-from mvbb_ros.pipeline.scene import find_scene, roi_mask, SupportPlane
+from mvbb_ros.pipeline.outliers import remove_statistical_outliers
+from mvbb_ros.pipeline.scene import find_scene, roi_mask, Scene, SupportPlane
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,7 +41,8 @@ class ObjectResult:
 
     :ivar index: the object's number in the cloud (0 is the largest).
     :ivar point_indices: the object's points among the filtered points (sorted; with a
-        support plane, among all filtered points, not only those standing on it).
+        support plane, among the voxel grid's points of the whole cloud: the outlier removal
+        then runs on what stands on the table only).
     :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
         points are ``shape.points``, observed first.
     :ivar decomposition: the fit-and-split tree of ``shape.points``.
@@ -161,6 +163,22 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
     return extent / 100.0 if extent > 0.0 else 1.0
 
 
+#: The scene stage's grid needs the spacing only roughly: measured on at most this many points.
+SPACING_SAMPLE = 20_000
+
+
+def spacing_estimate(points: FloatArray, voxel_size: float) -> float:
+    """
+    Return about :func:`point_spacing` of `points` (a surface), measured on a sample.
+
+    A surface sampled k times more sparsely has its points about sqrt(k) times farther apart.
+    """
+    step = max(1, len(points) // SPACING_SAMPLE)
+    if step == 1:
+        return point_spacing(points, voxel_size)
+    return max(point_spacing(points[::step], 0.0) / float(np.sqrt(step)), voxel_size)
+
+
 def _empty_counts(count: int = 0) -> FilterCounts:
     return FilterCounts(count, count, count, count)
 
@@ -242,38 +260,65 @@ def process_points(
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
-    filtered, counts = filter_points(
-        array, bounds=bounds, finite=finite, **asdict(settings.filtering)
-    )
+    filtering = settings.filtering
+    # With the scene stage on, the outlier removal waits for it: it then runs on what stands on
+    # the table only, not on the whole room (it gives the same points as before when the cloud
+    # shows no table). Without a voxel grid the points may still be float32: kept as before.
+    deferred = settings.scene.support_plane != 'none' and filtering.voxel_size > 0.0
+    first = replace(filtering, outlier_neighbors=0) if deferred else filtering
+    filtered, counts = filter_points(array, bounds=bounds, finite=finite, **asdict(first))
     if near is not None:
         counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
     timings['filter'] = (time.perf_counter() - start) * 1e3
     min_points = settings.decomposition.min_points
+    view = settings.view
+    start = time.perf_counter()
+    scene = Scene(None, None, 'support_plane: none')
+    if settings.scene.support_plane != 'none' and len(filtered) >= min_points:
+        scene = find_scene(
+            filtered,
+            settings.scene,
+            viewpoint=view.viewpoint,
+            up=view.up,
+            spacing=spacing_estimate(filtered, filtering.voxel_size),
+            min_points=min_points,
+        )
+    timings['scene'] = (time.perf_counter() - start) * 1e3
+    kept = np.arange(len(filtered)) if scene.kept is None else scene.kept
+    if deferred:
+        start = time.perf_counter()
+        neighbors = filtering.outlier_neighbors
+        if neighbors > 0 and len(kept) > neighbors:
+            inliers = remove_statistical_outliers(
+                filtered[kept], int(neighbors), float(filtering.outlier_std_ratio)
+            )
+            kept = kept[inliers]
+        counts = replace(counts, inliers=len(kept))
+        timings['filter'] += (time.perf_counter() - start) * 1e3
+    support = scene.support
+    if support is None:
+        filtered = filtered[kept] if deferred else filtered
+        kept = np.arange(len(filtered))
+    elif len(kept) < min_points:
+        warning = (
+            f'only {len(kept)} points stand on the support plane, fewer than '
+            f'min_points = {min_points}'
+        )
+        return PipelineResult(counts=counts, timings_ms=timings, warning=warning, support=support)
     if len(filtered) < min_points:
         warning = (
             f'only {len(filtered)} of {counts.finite} points left after filtering, fewer than '
             f'min_points = {min_points}'
         )
         return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
-
-    view = settings.view
     start = time.perf_counter()
-    spacing = point_spacing(filtered, settings.filtering.voxel_size)
-    scene = find_scene(
-        filtered,
-        settings.scene,
-        viewpoint=view.viewpoint,
-        up=view.up,
-        spacing=spacing,
-        min_points=min_points,
-    )
-    support = scene.support
+    standing = filtered if support is None else filtered[kept]
+    spacing = point_spacing(standing, filtering.voxel_size)
     up: ArrayLike | None = view.up
     up_source = 'up_direction'
     if up is None:
         up, up_source = (None, 'none') if support is None else (support.normal, 'support plane')
-    standing = filtered if scene.kept is None else filtered[scene.kept]
-    timings['scene'] = (time.perf_counter() - start) * 1e3
+    timings['scene'] += (time.perf_counter() - start) * 1e3
 
     def empty(warning: str | None) -> PipelineResult:
         return PipelineResult(
@@ -286,11 +331,6 @@ def process_points(
             up_source=up_source,
         )
 
-    if len(standing) < min_points:
-        return empty(
-            f'only {len(standing)} points stand on the support plane, fewer than '
-            f'min_points = {min_points}'
-        )
     start = time.perf_counter()
     # A tolerance below the point spacing would cut every object into single points.
     tolerance = max(view.cluster_tolerance, CLUSTER_SPACINGS * spacing)
@@ -322,8 +362,8 @@ def process_points(
         start = time.perf_counter()
         decomposition = decompose(shape.points, **asdict(settings.decomposition))
         timings['decompose'] += (time.perf_counter() - start) * 1e3
-        if scene.kept is not None:
-            members = scene.kept[members]
+        if support is not None:
+            members = kept[members]
         objects.append(ObjectResult(index, members, shape, decomposition))
 
     start = time.perf_counter()

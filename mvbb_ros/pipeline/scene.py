@@ -89,10 +89,9 @@ MAX_TILT_DEG = 30.0
 #: The grid of the inlier patch: this many point spacings, at least :data:`PATCH_CELL_MIN_M`.
 PATCH_CELLS = 4.0
 PATCH_CELL_MIN_M = 0.01
-#: At most this many planes are tried as the support, largest first.
+#: At most this many planes are tried as the support, largest first (each fitted to the points
+#: the previous ones' patches left).
 CANDIDATES = 3
-#: A plane on which this share of another large plane's patch stands is a wall, not a table.
-OTHER_PLANE_SHARE = 0.25
 #: The decision's reach: the outline must pass the standing footprint by this much (metres)...
 EXTEND_M = 0.05
 #: ... in at least this many of these many evenly spread directions in the plane.
@@ -174,8 +173,8 @@ def fit_plane(
     """
     Return the plane (unit normal, offset) that most of `points` lie within `distance` of.
 
-    RANSAC on a fixed-seed sample (deterministic), refined by least squares on the inliers of
-    all points. With `up` (unit), only planes within :data:`MAX_TILT_DEG` of it count. None
+    RANSAC on a fixed-seed sample (deterministic), refined by least squares on the inliers
+    among all points. With `up` (unit), only planes within :data:`MAX_TILT_DEG` of it count. None
     when no plane is found (fewer than 3 points, all collinear, or none near `up`).
     """
     count = len(points)
@@ -197,10 +196,8 @@ def fit_plane(
     scores = _count_near(sample, normals, offsets, distance)
     best = int(np.argmax(scores))
     normal, offset = normals[best], float(offsets[best])
-    for _ in range(2):
-        near = np.abs(points @ normal + offset) <= distance
-        if np.count_nonzero(near) < 3:
-            break
+    near = np.abs(points @ normal + offset) <= distance
+    if np.count_nonzero(near) >= 3:
         normal, offset = _plane_through(points[near])
     return normal, offset
 
@@ -298,33 +295,24 @@ def _patch(
     return near[_largest_patch(points[near] @ _frame(normal).T, cell)]
 
 
-def _candidates(
+def _next_plane(
     points: FloatArray,
+    rest: BoolArray,
     distance: float,
     up: FloatArray | None,
     eye: FloatArray,
     cell: float,
-    min_share: float,
-) -> list[_Candidate]:
-    """
-    Return up to :data:`CANDIDATES` planes, largest patch first, each refitted on its patch.
-
-    Each plane is fitted to the points the previous ones' patches left; only patches holding
-    at least `min_share` of all points count.
-    """
-    found: list[_Candidate] = []
-    rest = np.arange(len(points))
-    for _ in range(CANDIDATES):
-        plane = fit_plane(points[rest], distance, up)
-        if plane is None:
-            break
-        patch = rest[_patch(points[rest], *plane, distance, cell)]
-        if len(patch) < max(3, min_share * len(points)):
-            break
-        normal, offset = _oriented(*_plane_through(points[patch]), eye)
-        found.append(_Candidate(normal, offset, patch))
-        rest = np.setdiff1d(rest, patch, assume_unique=True)
-    return found
+) -> _Candidate | None:
+    """Return the largest plane among the `rest` of `points`, refitted on its patch."""
+    indices = np.flatnonzero(rest)
+    plane = fit_plane(points[indices], distance, up)
+    if plane is None:
+        return None
+    patch = indices[_patch(points[indices], *plane, distance, cell)]
+    if len(patch) < 3:
+        return None
+    normal, offset = _oriented(*_plane_through(points[patch]), eye)
+    return _Candidate(normal, offset, patch)
 
 
 def _standing(
@@ -337,8 +325,10 @@ def _standing(
     """Tell which `points` stand on the plane, inside its (2D) `outline`."""
     heights = points @ normal + offset
     standing = (heights > settings.support_distance) & (heights <= settings.support_max_height)
-    flat = points @ _frame(normal).T
-    return standing & inside_outline(flat, outline, settings.support_margin)
+    candidates = np.flatnonzero(standing)
+    flat = points[candidates] @ _frame(normal).T
+    standing[candidates] = inside_outline(flat, outline, settings.support_margin)
+    return standing
 
 
 def find_scene(
@@ -380,39 +370,44 @@ def find_scene(
         outline = _outline_2d(points[patch] @ _frame(normal).T)
         kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))
         return Scene(_support(normal, offset, outline, len(patch), True), kept)
-    candidates = _candidates(points, distance, unit_up, eye, cell, settings.support_min_fraction)
-    if not candidates:
+    rest = np.ones(len(points), dtype=bool)
+    least = max(3, settings.support_min_fraction * len(points))
+    reasons = []
+    for number in range(CANDIDATES):
+        candidate = _next_plane(points, rest, distance, unit_up, eye, cell)
+        if candidate is None or len(candidate.patch) < least:
+            break
+        rest[candidate.patch] = False
+        normal, offset = candidate.normal, candidate.offset
+        frame = _frame(normal)
+        outline = _outline_2d(points[candidate.patch] @ frame.T)
+        kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))
+        if len(kept) < min_points:
+            reasons.append(f'plane {number}: {len(kept)} points stand on it')
+            continue
+        reach = _reach(outline, points[kept] @ frame.T)
+        if reach < EXTEND_DIRECTIONS_MIN:
+            reasons.append(
+                f'plane {number}: reaches past what stands on it in {reach} of '
+                f'{EXTEND_DIRECTIONS} directions'
+            )
+            continue
+        # A table in front of a wall stands on the wall: a large plane among the standing points
+        # says that this plane is the wall.
+        other = _next_plane(
+            points[kept], np.ones(len(kept), dtype=bool), distance, None, eye, cell
+        )
+        if other is not None and len(other.patch) >= least:
+            reasons.append(f'plane {number}: another large plane stands on it (a wall?)')
+            continue
+        return Scene(_support(normal, offset, outline, len(candidate.patch), False), kept)
+    if not reasons:
         return Scene(
             None,
             None,
             'no plane holds support_min_fraction '
             f'{100 * settings.support_min_fraction:g} % of the points',
         )
-    reasons = []
-    for number, candidate in enumerate(candidates):
-        normal, offset = candidate.normal, candidate.offset
-        flat = points @ _frame(normal).T
-        outline = _outline_2d(flat[candidate.patch])
-        standing = _standing(points, normal, offset, outline, settings)
-        kept = np.flatnonzero(standing)
-        reach = _reach(outline, flat[kept]) if len(kept) else 0
-        others = [
-            other
-            for other in candidates
-            if other is not candidate
-            and np.count_nonzero(standing[other.patch]) > OTHER_PLANE_SHARE * len(other.patch)
-        ]
-        if len(kept) < min_points:
-            reasons.append(f'plane {number}: {len(kept)} points stand on it')
-        elif reach < EXTEND_DIRECTIONS_MIN:
-            reasons.append(
-                f'plane {number}: reaches past what stands on it in {reach} of '
-                f'{EXTEND_DIRECTIONS} directions'
-            )
-        elif others:
-            reasons.append(f'plane {number}: another large plane stands on it (a wall?)')
-        else:
-            return Scene(_support(normal, offset, outline, len(candidate.patch), False), kept)
     return Scene(None, None, 'no support: ' + '; '.join(reasons))
 
 
