@@ -22,7 +22,11 @@ on its table:
    footprint in at least :data:`EXTEND_DIRECTIONS_MIN` of :data:`EXTEND_DIRECTIONS` directions
    in the plane (a table reaches past its objects; a face of an object does not reach past the
    rest of the object, and a convex object has nothing on the sensor's side of its faces, so
-   it fails (b)). Otherwise the cloud is an already segmented object and passes unchanged.
+   it fails (b)), and (d) no plane among the standing points holds :data:`WALL_SHARE` of the
+   plane's own points and is :data:`WALL_WIDTH_M` wide (then the plane is a wall and the table
+   stands on it). Up to :data:`CANDIDATES` planes are tried, largest first; the first that
+   passes is the support.
+   Otherwise the cloud is an already segmented object and passes unchanged.
 
 ``support_plane: fixed`` takes the plane ``a x + b y + c z + d = 0`` from
 ``support_coefficients`` ((a, b, c) pointing up, out of the table's top) and skips the fit and
@@ -92,6 +96,11 @@ PATCH_CELL_MIN_M = 0.01
 #: At most this many planes are tried as the support, largest first (each fitted to the points
 #: the previous ones' patches left).
 CANDIDATES = 3
+#: A plane with another plane standing on it that holds this share of its own patch's points
+#: and is this wide (metres, its narrower side) is a wall with the table in front of it: an
+#: object's face is much smaller than its table.
+WALL_SHARE = 0.1
+WALL_WIDTH_M = 0.35
 #: The decision's reach: the outline must pass the standing footprint by this much (metres)...
 EXTEND_M = 0.05
 #: ... in at least this many of these many evenly spread directions in the plane.
@@ -265,6 +274,13 @@ def _reach(outline: FloatArray, footprint: FloatArray) -> int:
     return int(np.count_nonzero(beyond >= EXTEND_M))
 
 
+def _width(flat: FloatArray) -> float:
+    """Return the narrower side of the principal-axes rectangle of `flat` (N, 2)."""
+    centred = flat - flat.mean(axis=0)
+    axes = np.linalg.eigh(centred.T @ centred)[1]
+    return float(np.min(np.ptp(centred @ axes, axis=0)))
+
+
 def _frame(normal: FloatArray) -> FloatArray:
     """Return (2, 3) in-plane axes making a right-handed frame with `normal`."""
     first, second = perpendicular_axes(normal)
@@ -397,7 +413,11 @@ def find_scene(
         other = _next_plane(
             points[kept], np.ones(len(kept), dtype=bool), distance, None, eye, cell
         )
-        if other is not None and len(other.patch) >= least:
+        if (
+            other is not None
+            and len(other.patch) >= WALL_SHARE * len(candidate.patch)
+            and _width(points[kept][other.patch] @ _frame(other.normal).T) >= WALL_WIDTH_M
+        ):
             reasons.append(f'plane {number}: another large plane stands on it (a wall?)')
             continue
         return Scene(_support(normal, offset, outline, len(candidate.patch), False), kept)
