@@ -56,6 +56,12 @@ def test_table_top_frames_give_one_object_per_object_placed(seed):
     np.testing.assert_allclose(result.up, support.normal)
     for box in result.leaves:
         assert _share_above(box, truth) >= 0.8, 'no box below the table'
+    # A resting object's hidden side ends at the table: filled down to it, never below it.
+    for item in result.objects:
+        heights = item.shape.points @ truth[:3] + truth[3]
+        assert heights.min() > -0.005
+        if item.shape.plane is not None:
+            assert heights.min() < 0.01
     # No grasp approaches through the table: every pre-grasp position is above it.
     for grasp in result.grasps:
         assert grasp.position @ truth[:3] + truth[3] > 0.0

@@ -252,14 +252,14 @@ def process_points(
     array = np.asarray(points)
     bounds = None if decoded is None else decoded.bounds
     finite = None if decoded is None else decoded.finite
-    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance)
-    if near is not None:
-        # The region of interest first: a room-sized cloud shrinks before any filter.
-        array, bounds, finite = array[near], None, None
     reason = implausible_extent(array, bounds)
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
+    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance)
+    if near is not None:
+        # The region of interest before the filters: a room-sized cloud shrinks first.
+        array, bounds, finite = array[near], None, None
     filtering = settings.filtering
     # With the scene stage on, the outlier removal waits for it: it then runs on what stands on
     # the table only, not on the whole room (it gives the same points as before when the cloud
