@@ -4,7 +4,8 @@ Sample data of our own: household objects on a table, seen by a simulated depth 
 Meshes are built here with Open3D (no external model files), placed on a table and ray-cast by
 the virtual depth camera of :mod:`mvbb_ros.evaluation.camera` (noise models, poses, intrinsics
 and ray casting live there), so the clouds are single partial views with realistic sensor noise,
-like a segmented RGB-D object cloud.
+like a segmented RGB-D object cloud; :func:`table_top_frame` gives whole raw frames instead
+(table, objects, a wall behind the table and the floor), with the table's plane as truth.
 
 Conventions:
 
