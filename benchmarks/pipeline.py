@@ -24,11 +24,15 @@ or for the float32 -> float64 copy). ``ratio`` is our median total over the chai
 Frames:
 
 - ``camera 640x480``: a 640 x 480 organized frame from the package's virtual depth camera
-  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.evaluation.synthetic` scene), close
-  enough that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object
-  are NaN, as an organized segmentation delivers them. Four noise seeds.
-- ``organized 300k``: :func:`mvbb_ros.evaluation.synthetic.organized_frame` with 300 000 object
-  points (1214 x 910). Four noise seeds.
+  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.evaluation.synthetic` scene), close enough
+  that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object are
+  NaN, as an organized segmentation delivers them. Four noise seeds.
+- ``table-top 640x480``: a raw 640 x 480 frame of a table-top scene
+  (:func:`mvbb_ros.evaluation.synthetic.table_top_frame`: 1 to 4 objects on a table, a wall behind
+  it and the floor, nothing segmented): the scene stage finds the table and keeps what stands
+  on it. Four seeds.
+- ``organized 300k``: :func:`mvbb_ros.evaluation.synthetic.organized_frame` with 300 000 object points
+  (1214 x 910). Four noise seeds.
 - every real scan in the shared ``scans`` folder and the Bunny's vertices, as float32 clouds;
 - every cloud in the shared bags, read with :class:`mvbb_ros.ros.bag.CloudBag` and deserialized
   into rclpy messages as the node receives them.
@@ -64,6 +68,7 @@ THREAD_VARIABLES = (
 STEPS = (
     'decode',
     'filter',
+    'scene',
     'objects',
     'completion',
     'fit',
@@ -117,7 +122,7 @@ def organized_cloud(grid):
 
 def build_cases(quick: bool) -> list[tuple[str, list]]:
     """Return (name, [rclpy PointCloud2, ...]) for every case."""
-    from mvbb_ros.evaluation.synthetic import organized_frame
+    from mvbb_ros.evaluation.synthetic import organized_frame, table_top_frame
     from mvbb_ros.ros.bag import CloudBag
     from mvbb_ros.ros.encode import create_cloud_xyz
     import numpy as np
@@ -125,6 +130,10 @@ def build_cases(quick: bool) -> list[tuple[str, list]]:
     seeds = range(2 if quick else 4)
     cases = [
         ('camera 640x480', [organized_cloud(camera_frame(seed)) for seed in seeds]),
+        (
+            'table-top 640x480',
+            [organized_cloud(table_top_frame(seed, 1 + seed % 5).points) for seed in seeds],
+        ),
         ('organized 300k', [organized_cloud(organized_frame(300_000, seed=s)) for s in seeds]),
     ]
     scans = sorted((SHARED_DATA / 'scans').glob('*.npy'))
@@ -207,6 +216,7 @@ class Bench:
         times = {
             'decode': timings.get('decode', 0.0),
             'filter': timings.get('filter', 0.0),
+            'scene': timings.get('scene', 0.0),
             'objects': timings.get('objects', 0.0),
             'completion': timings.get('completion', 0.0),
             'fit': fit_ms,

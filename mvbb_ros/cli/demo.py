@@ -1,12 +1,12 @@
 """
 `mvbb demo`: the decomposer node on a replayed stream, end to end, on the project's own data.
 
-1. Write a small bag: a synthetic table-top scene
-   (:func:`~mvbb_ros.evaluation.synthetic.make_scene`) seen by a depth camera moving on an arc
-   around it, with sensor noise (:func:`~mvbb_ros.evaluation.synthetic.scene_views`); each frame
-   keeps the points of the objects (the table removed, as a table-top segmentation would) as one
-   PointCloud2 at 5 Hz.
-2. Start the node (the ``decomposer`` executable, ``-r cloud_in:=/demo/segmented_objects``,
+1. Write a small bag: a synthetic table-top scene (:func:`~mvbb_ros.evaluation.synthetic.make_scene`)
+   seen by a depth camera moving on an arc around it, with sensor noise
+   (:func:`~mvbb_ros.evaluation.synthetic.scene_views`); each frame is the camera's raw view (table,
+   objects, the wall behind the table and the floor; nothing segmented) as one PointCloud2 at
+   5 Hz. The node finds the table, and up from it, itself (``support_plane: auto``).
+2. Start the node (the ``decomposer`` executable, ``-r cloud_in:=/demo/camera/points``,
    ``input_depth:=50`` so that no frame is skipped: the input is reliable, as the player)
    as a subprocess.
 3. Play the bag through it with ``mvbb bag play`` (a subprocess) while a listener subscribed to
@@ -39,16 +39,17 @@ from typing import Any, TYPE_CHECKING
 from mvbb_ros.arrays import Float32Array
 from mvbb_ros.cli.render import Panel, render_panels
 from mvbb_ros.evaluation.camera import BACKGROUND
-from mvbb_ros.evaluation.synthetic import make_scene, scene_views
+from mvbb_ros.evaluation.synthetic import make_room_meshes, make_scene, Scene, scene_views
 from mvbb_ros.pipeline.decode import read_xyz
 from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping
-from mvbb_ros.pipeline.settings_text import format_assignment, parse_assignments
+from mvbb_ros.pipeline.settings_text import parse_assignments
+import numpy as np
 
 if TYPE_CHECKING:  # the ROS side is imported when the demo runs (see run_demo)
     from mvbb_ros.ros.demo_graph import DemoListener, OfflineFrame
 
 #: The demo bag's cloud topic and frame.
-DEMO_TOPIC = '/demo/segmented_objects'
+DEMO_TOPIC = '/demo/camera/points'
 DEMO_FRAME = 'demo_camera_optical_frame'
 #: Objects of the demo scene, and the seed of their placement.
 DEMO_KINDS = ('mug', 'can', 'box')
@@ -110,30 +111,26 @@ def demo_environment(environ: MutableMapping[str, str] | None = None) -> dict[st
     return {name: target[name] for name in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
 
 
+def demo_scene(seed: int = DEMO_SEED) -> Scene:
+    """Return the demo's scene: its objects on the table, a wall behind it and the floor."""
+    scene = make_scene(seed, DEMO_KINDS)
+    return Scene(scene.objects, scene.table, tuple(make_room_meshes()))
+
+
 def demo_clouds(frames: int, *, seed: int = DEMO_SEED) -> list[tuple[int, Float32Array]]:
     """
-    Return the demo's frames: ``(stamp_ns, points)`` of the objects seen by the moving camera.
+    Return the demo's frames: ``(stamp_ns, points)``, every point the moving camera saw.
 
     :param frames: number of camera frames.
     :param seed: seed of the scene and of the sensor noise.
     """
-    scene = make_scene(seed, DEMO_KINDS)
-    return [
-        (FIRST_STAMP_NS + view.index * FRAME_PERIOD_NS, view.points[view.labels != BACKGROUND])
-        for view in scene_views(scene, frames, distance=DEMO_DISTANCE, seed=seed)
-    ]
-
-
-def demo_up_direction() -> list[float]:
-    """
-    Return the table's up direction in the demo camera's optical frame.
-
-    The camera circles the table at a fixed height and tilt, so up is the same in every frame;
-    a robot reads it from its TF tree (the base's z axis in the camera frame) and sets
-    ``up_direction``.
-    """
-    view = next(iter(scene_views(make_scene(DEMO_SEED, DEMO_KINDS), 1, distance=DEMO_DISTANCE)))
-    return [round(float(v), 6) for v in view.camera_pose[2, :3]]
+    clouds = []
+    for view in scene_views(demo_scene(seed), frames, distance=DEMO_DISTANCE, seed=seed):
+        points = view.points.reshape(-1, 3)
+        clouds.append(
+            (FIRST_STAMP_NS + view.index * FRAME_PERIOD_NS, points[np.isfinite(points).all(1)])
+        )
+    return clouds
 
 
 class _Children:
@@ -235,9 +232,6 @@ def _run(
 
     if frames < 1:
         raise DemoError(f'--frames must be >= 1, got {frames}')
-    if not any(assignment.startswith('up_direction:=') for assignment in assignments):
-        # What a robot's TF gives it: the table's up in the camera frame.
-        assignments = [*assignments, format_assignment('up_direction', demo_up_direction())]
     try:
         settings = settings_from_mapping(parse_assignments(assignments))
     except ValueError as error:

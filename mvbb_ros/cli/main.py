@@ -245,6 +245,18 @@ def print_report(result: PipelineResult, seconds: float, settings: PipelineSetti
     )
     for line in result.notes:
         print(f'note: {line}')
+    support = result.support
+    if support is not None:
+        a, b, c, d = support.coefficients
+        print(
+            f'support plane ({"fixed" if support.fixed else "fitted"}): '
+            f'{a:.4f} x {b:+.4f} y {c:+.4f} z {d:+.4f} = 0, {support.inliers} points on it, '
+            f'outline of {len(support.outline)} corners'
+        )
+    elif result.support_note is not None:
+        print(f'no support plane: {result.support_note}')
+    up = 'unknown' if result.up is None else _format_vector(result.up).strip()
+    print(f'up: {up} (from {result.up_source})')
     print(f'{"obj":>3} {"box":>3} {"points":>7}  {"centre":^29}  {"extents":^29}  {"volume":>11}')
     rows = zip(leaves, result.leaf_object_indices, result.leaf_observed_counts, strict=True)
     for index, (box, obj, count) in enumerate(rows):
@@ -279,7 +291,10 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
     node index, each box) with its index, observed point count, completion (and why it was
     skipped, or None) and mirror plane; ``leaves``: every leaf box in the order grasps number
     them (``box_index``), with its object, node and observed point count; then the grasps, the
-    filter counts and every parameter in force.
+    support plane (``coefficients`` (a, b, c, d) of ``a x + b y + c z + d = 0`` with (a, b, c)
+    the unit normal pointing up, ``outline`` corners in the cloud frame, ``inliers``; or None
+    and ``support_note`` says why), the up direction used and its source, the filter counts and
+    every parameter in force.
     """
     objects = []
     leaves = []
@@ -311,6 +326,17 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
         'objects': objects,
         'leaves': leaves,
         'grasps': [grasp.to_dict() for grasp in result.grasps],
+        'support': None
+        if result.support is None
+        else {
+            'coefficients': list(result.support.coefficients),
+            'outline': result.support.outline.tolist(),
+            'inliers': result.support.inliers,
+            'fixed': result.support.fixed,
+        },
+        'support_note': result.support_note,
+        'up': None if result.up is None else list(result.up),
+        'up_source': result.up_source,
         'filter_counts': asdict(result.counts),
         'parameters': settings.parameters(),
     }

@@ -4,7 +4,8 @@ Sample data of our own: household objects on a table, seen by a simulated depth 
 Meshes are built here with Open3D (no external model files), placed on a table and ray-cast by
 the virtual depth camera of :mod:`mvbb_ros.evaluation.camera` (noise models, poses, intrinsics
 and ray casting live there), so the clouds are single partial views with realistic sensor noise,
-like a segmented RGB-D object cloud.
+like a segmented RGB-D object cloud; :func:`table_top_frame` gives whole raw frames instead
+(table, objects, a wall behind the table and the floor), with the table's plane as truth.
 
 Conventions:
 
@@ -243,6 +244,30 @@ def make_table_mesh(
     return mesh
 
 
+#: The room around the table (metres): the floor's height, and the wall behind the table (its
+#: near face's y, its width and height from the floor).
+FLOOR_Z = -0.75
+WALL_Y = 0.5
+WALL_SIZE = (2.4, 1.6)
+
+
+def make_room_meshes(*, wall: bool = True, floor: bool = True) -> list[o3d.geometry.TriangleMesh]:
+    """Build the wall behind the table (at y = :data:`WALL_Y`) and the floor below it."""
+    meshes = []
+    if wall:
+        width, height = WALL_SIZE
+        mesh = o3d.geometry.TriangleMesh.create_box(width, 0.05, height)
+        mesh.translate([-width / 2.0, WALL_Y, FLOOR_Z])
+        meshes.append(mesh)
+    if floor:
+        mesh = o3d.geometry.TriangleMesh.create_box(4.0, 4.0, 0.05)
+        mesh.translate([-2.0, -2.0, FLOOR_Z - 0.05])
+        meshes.append(mesh)
+    for mesh in meshes:
+        mesh.compute_vertex_normals()
+    return meshes
+
+
 def pose_matrix(translation: ArrayLike = (0.0, 0.0, 0.0), yaw: float = 0.0) -> FloatArray:
     """Return the 4x4 transform: a rotation of `yaw` radians about +z, then a translation (m)."""
     pose = np.eye(4)
@@ -279,10 +304,12 @@ class Scene:
 
     :ivar objects: the placed objects.
     :ivar table: the table slab mesh (world frame, top face on z = 0), or None for no table.
+    :ivar room: further background meshes (a wall behind the table, the floor).
     """
 
     objects: tuple[SceneObject, ...]
     table: o3d.geometry.TriangleMesh | None = field(default_factory=make_table_mesh)
+    room: tuple[o3d.geometry.TriangleMesh, ...] = ()
 
     @property
     def meshes(self) -> list[o3d.geometry.TriangleMesh]:
@@ -304,6 +331,7 @@ class Scene:
         labelled = list(enumerate(self.meshes))
         if self.table is not None:
             labelled.append((BACKGROUND, self.table))
+        labelled.extend((BACKGROUND, mesh) for mesh in self.room)
         return labelled
 
     def label_of(self, name: str) -> int:
@@ -435,6 +463,73 @@ def scene_views(
         rng = np.random.default_rng([seed, index])
         points, labels = caster.render(pose, intrinsics, (width, height), noise, rng)
         yield View(index=index, points=points, labels=labels, camera_pose=pose)
+
+
+def table_top_scene(seed: int, count: int, *, room: bool = True) -> Scene:
+    """
+    Build a table-top scene of `count` (1-5) objects of random kinds, a wall and the floor.
+
+    The kinds are drawn (with repetition) from :data:`OBJECT_KINDS` and placed by
+    :func:`make_scene` in the middle 0.7 x 0.45 m of the table; the same seed gives the same
+    scene.
+    """
+    if not 1 <= count <= 5:
+        raise ValueError(f'count must be 1 to 5, got {count}')
+    rng = np.random.default_rng([seed, count])
+    kinds = [str(kind) for kind in rng.choice(OBJECT_KINDS, size=count)]
+    scene = make_scene(seed, kinds, area=(0.7, 0.45))
+    return Scene(scene.objects, scene.table, tuple(make_room_meshes()) if room else ())
+
+
+@dataclass(frozen=True)
+class TableTopFrame:
+    """
+    One organized camera frame of a table-top scene, with its truth.
+
+    :ivar points: (H, W, 3) float32 in the camera optical frame, metres, NaN holes.
+    :ivar labels: (H, W) object labels (:data:`BACKGROUND` for table, wall, floor and holes).
+    :ivar camera_pose: (4, 4) T_world_camera.
+    :ivar objects: how many objects stand on the table.
+    """
+
+    points: Float32Array
+    labels: IntArray
+    camera_pose: FloatArray
+    objects: int
+
+    @property
+    def table_plane(self) -> FloatArray:
+        """Return the table top (a, b, c, d) in the camera frame, (a, b, c) the unit up."""
+        rotation, translation = self.camera_pose[:3, :3], self.camera_pose[:3, 3]
+        return np.append(rotation[2, :], translation[2])
+
+
+def table_top_frame(
+    seed: int,
+    count: int,
+    *,
+    distance: float = 0.9,
+    room: bool = True,
+    noise: DepthNoise | None = DEFAULT_NOISE,
+) -> TableTopFrame:
+    """
+    Render a raw 640 x 480 frame of :func:`table_top_scene`: table, objects, wall and floor.
+
+    The camera looks at the table centre from `distance` metres, at an azimuth of -135 to -45
+    degrees and an elevation of 30 to 60 degrees drawn from `seed` (so the wall stands behind
+    the table); nothing is segmented.
+    """
+    scene = table_top_scene(seed, count, room=room)
+    rng = np.random.default_rng([seed, count, 1])
+    azimuth, elevation = rng.uniform(-135.0, -45.0), rng.uniform(30.0, 60.0)
+    pose = orbit_pose((0.0, 0.0, 0.05), distance, azimuth, elevation)
+    intrinsics = camera_intrinsics(
+        DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FOCAL, DEFAULT_FOCAL, None, None
+    )
+    points, labels = DepthCamera(scene).render(
+        pose, intrinsics, (DEFAULT_WIDTH, DEFAULT_HEIGHT), noise, np.random.default_rng(seed)
+    )
+    return TableTopFrame(points, labels, pose, count)
 
 
 def _object_scene(kind: str, yaw_deg: float) -> tuple[Scene, FloatArray]:

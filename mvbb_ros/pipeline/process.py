@@ -1,5 +1,5 @@
 """
-The per-cloud pipeline: decode, filter, objects, hidden side, decompose, grasp.
+The per-cloud pipeline: decode, filter, scene, objects, hidden side, decompose, grasp.
 
 ``docs/architecture.md`` follows one cloud through it.
 
@@ -11,7 +11,7 @@ message is read duck-typed (rclpy and rosbags messages both work).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 import time
 from typing import Any
 
@@ -26,6 +26,8 @@ from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
+from mvbb_ros.pipeline.outliers import remove_statistical_outliers
+from mvbb_ros.pipeline.scene import find_scene, roi_mask, Scene, SupportPlane
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,7 +40,9 @@ class ObjectResult:
     One object of a cloud: its observed points, its estimated shape and its decomposition.
 
     :ivar index: the object's number in the cloud (0 is the largest).
-    :ivar point_indices: the object's points among the filtered points (sorted).
+    :ivar point_indices: the object's points among the filtered points (sorted; with a
+        support plane, among the voxel grid's points of the whole cloud: the outlier removal
+        then runs on what stands on the table only).
     :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
         points are ``shape.points``, observed first.
     :ivar decomposition: the fit-and-split tree of ``shape.points``.
@@ -68,7 +72,11 @@ class PipelineResult:
     throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
     Boxes are numbered across objects: :attr:`leaves` lists every object's leaves in object
     order, and each grasp's ``box_index`` indexes it. `refinement` says what the refinement
-    tried (None when it is off). `capped` says what a frame cap left out (``max_objects``).
+    tried (None when it is off). `support` is the plane the objects stand on (None when the
+    cloud is one segmented object, `support_note` says why); `up` the up direction the
+    completion and the grasps used and `up_source` where it came from (``'up_direction'``,
+    ``'support plane'`` or ``'none'``). `capped` says what a frame cap left out
+    (``max_objects``).
     """
 
     counts: FilterCounts
@@ -77,6 +85,10 @@ class PipelineResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     warning: str | None = None
     refinement: RefinedGrasps | None = None
+    support: SupportPlane | None = None
+    support_note: str | None = None
+    up: tuple[float, float, float] | None = None
+    up_source: str = 'none'
     capped: list[str] = field(default_factory=list)
 
     @property
@@ -153,6 +165,22 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
     return extent / 100.0 if extent > 0.0 else 1.0
 
 
+#: The scene stage's grid needs the spacing only roughly: measured on at most this many points.
+SPACING_SAMPLE = 20_000
+
+
+def spacing_estimate(points: FloatArray, voxel_size: float) -> float:
+    """
+    Return about :func:`point_spacing` of `points` (a surface), measured on a sample.
+
+    A surface sampled k times more sparsely has its points about sqrt(k) times farther apart.
+    """
+    step = max(1, len(points) // SPACING_SAMPLE)
+    if step == 1:
+        return point_spacing(points, voxel_size)
+    return max(point_spacing(points[::step], 0.0) / float(np.sqrt(step)), voxel_size)
+
+
 def _empty_counts(count: int = 0) -> FilterCounts:
     return FilterCounts(count, count, count, count)
 
@@ -225,32 +253,91 @@ def process_points(
     start = time.perf_counter()
     array = np.asarray(points)
     bounds = None if decoded is None else decoded.bounds
+    finite = None if decoded is None else decoded.finite
     reason = implausible_extent(array, bounds)
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
-    filtered, counts = filter_points(
-        array,
-        bounds=bounds,
-        finite=None if decoded is None else decoded.finite,
-        **asdict(settings.filtering),
-    )
+    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance)
+    if near is not None:
+        # The region of interest before the filters: a room-sized cloud shrinks first.
+        array, bounds, finite = array[near], None, None
+    filtering = settings.filtering
+    # With the scene stage on, the outlier removal waits for it: it then runs on what stands on
+    # the table only, not on the whole room (it gives the same points as before when the cloud
+    # shows no table). Without a voxel grid the points may still be float32: kept as before.
+    deferred = settings.scene.support_plane != 'none' and filtering.voxel_size > 0.0
+    first = replace(filtering, outlier_neighbors=0) if deferred else filtering
+    filtered, counts = filter_points(array, bounds=bounds, finite=finite, **asdict(first))
+    if near is not None:
+        counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
     timings['filter'] = (time.perf_counter() - start) * 1e3
     min_points = settings.decomposition.min_points
+    view = settings.view
+    start = time.perf_counter()
+    scene = Scene(None, None, 'support_plane: none')
+    if settings.scene.support_plane != 'none' and len(filtered) >= min_points:
+        scene = find_scene(
+            filtered,
+            settings.scene,
+            viewpoint=view.viewpoint,
+            up=view.up,
+            spacing=spacing_estimate(filtered, filtering.voxel_size),
+            min_points=min_points,
+        )
+    timings['scene'] = (time.perf_counter() - start) * 1e3
+    kept = np.arange(len(filtered)) if scene.kept is None else scene.kept
+    if deferred:
+        start = time.perf_counter()
+        neighbors = filtering.outlier_neighbors
+        if neighbors > 0 and len(kept) > neighbors:
+            inliers = remove_statistical_outliers(
+                filtered[kept], int(neighbors), float(filtering.outlier_std_ratio)
+            )
+            kept = kept[inliers]
+        counts = replace(counts, inliers=len(kept))
+        timings['filter'] += (time.perf_counter() - start) * 1e3
+    support = scene.support
+    if support is None:
+        filtered = filtered[kept] if deferred else filtered
+        kept = np.arange(len(filtered))
+    elif len(kept) < min_points:
+        warning = (
+            f'only {len(kept)} points stand on the support plane, fewer than '
+            f'min_points = {min_points}'
+        )
+        return PipelineResult(counts=counts, timings_ms=timings, warning=warning, support=support)
     if len(filtered) < min_points:
         warning = (
             f'only {len(filtered)} of {counts.finite} points left after filtering, fewer than '
             f'min_points = {min_points}'
         )
         return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
-
-    view = settings.view
     start = time.perf_counter()
-    spacing = point_spacing(filtered, settings.filtering.voxel_size)
+    standing = filtered if support is None else filtered[kept]
+    spacing = point_spacing(standing, filtering.voxel_size)
+    up: ArrayLike | None = view.up
+    up_source = 'up_direction'
+    if up is None:
+        up, up_source = (None, 'none') if support is None else (support.normal, 'support plane')
+    timings['scene'] += (time.perf_counter() - start) * 1e3
+
+    def empty(warning: str | None) -> PipelineResult:
+        return PipelineResult(
+            counts=counts,
+            timings_ms=timings,
+            warning=warning,
+            support=support,
+            support_note=scene.reason,
+            up=None if up is None else _unit(up),
+            up_source=up_source,
+        )
+
+    start = time.perf_counter()
     # A tolerance below the point spacing would cut every object into single points.
     tolerance = max(view.cluster_tolerance, CLUSTER_SPACINGS * spacing)
     groups = separate_objects(
-        filtered,
+        standing,
         tolerance if view.cluster_tolerance > 0.0 else 0.0,
         viewpoint=view.viewpoint,
         spacing=spacing,
@@ -258,8 +345,7 @@ def process_points(
     )
     timings['objects'] = (time.perf_counter() - start) * 1e3
     if not groups:
-        warning = f'no object of at least min_points = {min_points} points in the cloud'
-        return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
+        return empty(f'no object of at least min_points = {min_points} points in the cloud')
 
     capped = []
     if 0 < view.max_objects < len(groups):
@@ -273,28 +359,36 @@ def process_points(
     timings['completion'] = timings['decompose'] = 0.0
     for index, members in enumerate(groups):
         start = time.perf_counter()
+        observed = standing[members]
         shape = complete_view(
-            filtered[members],
+            observed,
             method=view.completion,
             viewpoint=view.viewpoint,
-            up=view.up,
+            up=up,
             spacing=spacing,
+            floor=None if support is None or up is None else resting_floor(observed, support, up),
         )
         timings['completion'] += (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
         decomposition = decompose(shape.points, **asdict(settings.decomposition))
         timings['decompose'] += (time.perf_counter() - start) * 1e3
+        if support is not None:
+            members = kept[members]
         objects.append(ObjectResult(index, members, shape, decomposition))
 
     start = time.perf_counter()
-    result = PipelineResult(counts=counts, objects=objects, timings_ms=timings, capped=capped)
+    result = empty(None)
+    result.objects = objects
+    result.capped = capped
     refining = settings.refinement.enabled
     options = asdict(settings.grasps)
     if refining:
         options['max_grasps'] = 0  # every hypothesis is a seed
+    if support is not None and options['support_plane'] is None:
+        options['support_plane'] = support.coefficients  # no approach through the table
     result.grasps = grasp_hypotheses(
         result.leaves,
-        up=view.up,
+        up=up,
         sensor_origin=view.viewpoint,
         object_indices=result.leaf_object_indices,
         **options,
@@ -302,14 +396,14 @@ def process_points(
     timings['grasps'] = (time.perf_counter() - start) * 1e3
     if refining:
         start = time.perf_counter()
-        models = [object_surface(item, spacing, view.up) for item in objects]
+        models = [object_surface(item, spacing, up) for item in objects]
         result.refinement = refine_grasps(
             result.grasps,
             result.leaves,
             result.leaf_object_indices,
             models,
             settings.refinement,
-            grasp_view(settings),
+            grasp_view(settings, up),
             previous,
         )
         result.grasps = result.refinement.grasps
@@ -317,13 +411,43 @@ def process_points(
     return result
 
 
-def grasp_view(settings: PipelineSettings) -> GraspView:
-    """Return what the refinement needs of the gripper and the view, from the settings."""
+def _unit(vector: ArrayLike) -> tuple[float, float, float]:
+    unit = np.asarray(vector, dtype=np.float64)
+    x, y, z = (unit / np.linalg.norm(unit)).tolist()
+    return x, y, z
+
+
+#: An object whose lowest point is at most this far above the support plane (metres) rests on
+#: it: its hidden side is filled down to the table.
+RESTING_GAP = 0.05
+
+
+def resting_floor(points: FloatArray, support: SupportPlane, up: ArrayLike) -> float | None:
+    """
+    Return the height along unit `up` of the table under `points`, or None when not resting.
+
+    Each point is taken straight down (along -`up`) to the support plane; the floor is the mean
+    height there, when the object's lowest point is within :data:`RESTING_GAP` of the plane.
+    """
+    heights = support.heights(points)
+    if float(heights.min()) > RESTING_GAP:
+        return None
+    unit = np.asarray(up, dtype=np.float64)
+    slope = float(support.normal @ unit)
+    if slope <= 0.1:
+        return None
+    return float(np.mean(points @ unit - heights / slope))
+
+
+def grasp_view(settings: PipelineSettings, up: ArrayLike | None) -> GraspView:
+    """
+    Return what the refinement needs of the gripper and the view, from the settings.
+
+    `up` is the up direction the pipeline uses (``up_direction``, else the support plane's
+    normal), or None.
+    """
     grasps, view = settings.grasps, settings.view
-    up = None
-    if view.up is not None:
-        up = np.asarray(view.up, dtype=np.float64)
-        up = up / np.linalg.norm(up)
+    up = None if up is None else np.asarray(_unit(up))
     return GraspView(
         gripper_max_width=grasps.gripper_max_width,
         standoff=grasps.standoff,

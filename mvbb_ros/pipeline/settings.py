@@ -7,6 +7,8 @@ stage (the two stages of the pipeline layer are defined here, so that reading th
 not load Open3D, which the filters use):
 
 * ``filtering``: :class:`FilterSettings` (this module); its defaults filter nothing;
+* ``scene``: :class:`~mvbb_ros.pipeline.scene.SceneSettings`; no support plane, no region of
+  interest (the cloud is one segmented object, as in the paper);
 * ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.tree.DecompositionSettings`; the
   paper's defaults;
 * ``grasps``: :class:`~mvbb_ros.geometry.grasping.hypotheses.GraspSettings`; the library's
@@ -44,6 +46,7 @@ from mvbb_ros.geometry.decomposition.tree import DecompositionSettings
 from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import Completion, COMPLETIONS
+from mvbb_ros.pipeline.scene import SceneSettings, SUPPORT_MODES
 
 #: What the range checks accept: (low, high) inclusive; None for no bound.
 Range = tuple[float | None, float | None]
@@ -303,6 +306,65 @@ SPECS: tuple[SettingSpec, ...] = (
         'Upper corner (x, y, z) of the crop box in metres; empty leaves it open above.',
         vector_length=3,
     ),
+    # The scene: the support plane and what stands on it (pipeline/scene.py).
+    SettingSpec(
+        'roi_max_distance',
+        SceneSettings,
+        float,
+        'Drop points farther than this from the viewpoint (metres) before anything else, so '
+        'a room-sized cloud is cut down to the work surface; 0 keeps every point.',
+        (0.0, 1000.0),
+        node_default=3.0,
+    ),
+    SettingSpec(
+        'support_plane',
+        SceneSettings,
+        str,
+        "The plane the objects stand on: 'auto' fits it and keeps what stands on it when the "
+        "cloud is a table-top scene (a segmented object passes unchanged), 'none' treats the "
+        "cloud as one segmented object (the paper), 'fixed' uses support_coefficients.",
+        choices=SUPPORT_MODES,
+        node_default='auto',
+    ),
+    SettingSpec(
+        'support_coefficients',
+        SceneSettings,
+        list,
+        'The fixed support plane (a, b, c, d): a x + b y + c z + d = 0 in the cloud frame, '
+        "(a, b, c) pointing up out of the table; used with support_plane 'fixed'.",
+        vector_length=4,
+    ),
+    SettingSpec(
+        'support_distance',
+        SceneSettings,
+        float,
+        "Points this close to the support plane (metres) are the table: the fit's inlier "
+        'band, and what stands on the table starts this high.',
+        (1e-4, 1.0),
+    ),
+    SettingSpec(
+        'support_max_height',
+        SceneSettings,
+        float,
+        'Keep what stands at most this high above the support plane (metres).',
+        (1e-3, 100.0),
+    ),
+    SettingSpec(
+        'support_margin',
+        SceneSettings,
+        float,
+        "Keep what stands at least this far inside the table's outline (metres): the foot of "
+        'a wall behind the table is dropped.',
+        (0.0, 1.0),
+    ),
+    SettingSpec(
+        'support_min_fraction',
+        SceneSettings,
+        float,
+        "support_plane 'auto': the table holds at least this share of the points, else the "
+        'cloud is a segmented object.',
+        (0.0, 1.0),
+    ),
     # The sensor view: objects and their hidden side (docs/single_views.md).
     SettingSpec(
         'viewpoint',
@@ -524,6 +586,7 @@ class PipelineSettings:
     Every setting of the pipeline, by stage; ``PipelineSettings()`` holds the node's defaults.
 
     :ivar filtering: crop, voxel grid and outlier removal.
+    :ivar scene: the region of interest, the support plane and what stands on it.
     :ivar view: the sensor's position and up, objects and their hidden side.
     :ivar decomposition: the fit-and-split decomposition (``decompose``'s arguments).
     :ivar grasps: the grasp hypotheses (``grasp_hypotheses``' arguments).
@@ -532,6 +595,7 @@ class PipelineSettings:
     """
 
     filtering: FilterSettings = field(default_factory=lambda: _node_defaults(FilterSettings))
+    scene: SceneSettings = field(default_factory=lambda: _node_defaults(SceneSettings))
     view: ViewSettings = field(default_factory=lambda: _node_defaults(ViewSettings))
     decomposition: DecompositionSettings = field(
         default_factory=lambda: _node_defaults(DecompositionSettings)
@@ -547,6 +611,7 @@ class PipelineSettings:
         """Return the paper's algorithm: every stage at its own defaults (no filters, no cap)."""
         return cls(
             filtering=FilterSettings(),
+            scene=SceneSettings(),
             view=ViewSettings(),
             decomposition=DecompositionSettings(),
             grasps=GraspSettings(),
@@ -699,6 +764,14 @@ def _check_vector(spec: SettingSpec, value: Any) -> str | None:
 def validate_combination(settings: PipelineSettings) -> str | None:
     """Return why settings that are each valid do not fit together, or None."""
     crop_min, crop_max = settings.filtering.crop_min, settings.filtering.crop_max
+    scene = settings.scene
+    if scene.support_plane == 'fixed' and (
+        len(scene.support_coefficients) != 4 or math.hypot(*scene.support_coefficients[:3]) < 1e-9
+    ):
+        return (
+            "support_plane 'fixed' needs support_coefficients (a, b, c, d) with (a, b, c) not "
+            f'zero, got {list(scene.support_coefficients)}'
+        )
     if (
         crop_min
         and crop_max

@@ -13,6 +13,11 @@ Build the node's output messages from pipeline results (a thin layer over the ge
 - box_list: a `sensor_msgs/PointCloud2` with one point per box, the leaves first (in the order
   of ``boxes``), then the inner boxes (in the order of ``tree``): :data:`BOX_FLOAT_FIELDS` and
   :data:`BOX_INDEX_FIELDS`;
+- support: the support plane's outline (the table the objects stand on) as a
+  `geometry_msgs/PolygonStamped`, in the cloud's frame; no points when the cloud has no support
+  plane (a segmented object, or ``support_plane: off``). ``~/boxes`` also draws it, namespace
+  ``support``: the outline as a LINE_STRIP (id 0) and the plane inside it as a translucent
+  TRIANGLE_LIST (id 1), so the table goes with the boxes and their DELETEALL;
 - diagnostics: a `diagnostic_msgs/DiagnosticStatus` with counts and timings.
 
 All are stamped with the input cloud's header; nothing else is assumed about frames.
@@ -27,10 +32,11 @@ from typing import Any
 
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, Pose, PoseArray
+from geometry_msgs.msg import Point, Point32, PolygonStamped, Pose, PoseArray
 from mvbb_ros.geometry.box import Box, box_quaternions, EDGES
 from mvbb_ros.geometry.grasping.hypotheses import Grasp
 from mvbb_ros.pipeline.process import PipelineResult
+from mvbb_ros.pipeline.scene import SupportPlane
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
@@ -60,6 +66,7 @@ OUTPUT_TYPES: dict[str, type] = {
     'box_list': PointCloud2,
     'grasps': PoseArray,
     'grasp_candidates': PointCloud2,
+    'support': PolygonStamped,
 }
 #: float32 fields of ``~/grasp_candidates`` after x, y, z (the gripper frame's origin):
 #: orientation (x, y, z, w), the opening the gripper needs (metres), the score in [0, 1] and
@@ -76,6 +83,10 @@ BOX_FLOAT_FIELDS = ('qx', 'qy', 'qz', 'qw', 'size_x', 'size_y', 'size_z')
 BOX_INDEX_FIELDS = ('point_count', 'object_index', 'parent', 'leaf')
 #: RViz does not draw a CUBE with a zero scale; flat boxes get this thickness (metres).
 MIN_MARKER_SCALE = 1e-4
+#: The support plane's markers: namespace, outline width (metres) and colour (r, g, b, a).
+SUPPORT_NAMESPACE = 'support'
+SUPPORT_LINE_WIDTH = 0.005
+SUPPORT_COLOR = (0.6, 0.6, 0.6)
 
 
 def _color(index: int, alpha: float) -> ColorRGBA:
@@ -158,6 +169,37 @@ def box_markers(
         label.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
         array.markers.append(label)
     return array
+
+
+def support_polygon(support: SupportPlane | None, header: Header) -> PolygonStamped:
+    """Return the support plane's outline as a PolygonStamped (no points without a support)."""
+    message = PolygonStamped(header=header)
+    if support is not None:
+        message.polygon.points = [
+            Point32(x=x, y=y, z=z) for x, y, z in support.outline.astype(np.float64).tolist()
+        ]
+    return message
+
+
+def support_markers(support: SupportPlane | None, header: Header) -> list[Marker]:
+    """Return the support's outline (LINE_STRIP) and plane (TRIANGLE_LIST) markers, or none."""
+    if support is None or len(support.outline) < 3:
+        return []
+    corners = [Point(x=x, y=y, z=z) for x, y, z in support.outline.tolist()]
+    red, green, blue = SUPPORT_COLOR
+    outline = _marker(header, SUPPORT_NAMESPACE, 0, Marker.LINE_STRIP)
+    outline.points = [*corners, corners[0]]
+    outline.scale.x = SUPPORT_LINE_WIDTH
+    outline.color = ColorRGBA(r=red, g=green, b=blue, a=1.0)
+    plane = _marker(header, SUPPORT_NAMESPACE, 1, Marker.TRIANGLE_LIST)
+    plane.points = [
+        point
+        for k in range(1, len(corners) - 1)
+        for point in (corners[0], corners[k], corners[k + 1])
+    ]
+    plane.scale.x = plane.scale.y = plane.scale.z = 1.0
+    plane.color = ColorRGBA(r=red, g=green, b=blue, a=0.25)
+    return [outline, plane]
 
 
 def grasp_pose_array(grasps: Sequence[Grasp], header: Header) -> PoseArray:
@@ -283,8 +325,8 @@ def output_messages(
     :param result: the pipeline result, or None when processing failed.
     :param header: the input cloud's header; every message is stamped with it.
     :param settings: the settings in force (``publish_tree`` adds the ``tree`` message).
-    :return: ``boxes``, ``box_list``, ``grasps`` and ``grasp_candidates``, and ``tree`` when
-        ``settings.node.publish_tree``, in publication order.
+    :return: ``boxes``, ``box_list``, ``grasps``, ``grasp_candidates`` and ``support``, and
+        ``tree`` when ``settings.node.publish_tree``, in publication order.
     """
     leaves = [] if result is None else result.leaves
     objects = [] if result is None else result.leaf_object_indices
@@ -293,9 +335,10 @@ def output_messages(
         f'{index}: {count} pts' if len(set(objects)) < 2 else f'{obj}.{index}: {count} pts'
         for index, (obj, count) in enumerate(zip(objects, counts, strict=True))
     ]
-    outputs: dict[str, Any] = {
-        'boxes': box_markers(leaves, header, labels=labels, objects=objects)
-    }
+    support = None if result is None else result.support
+    boxes = box_markers(leaves, header, labels=labels, objects=objects)
+    boxes.markers.extend(support_markers(support, header))
+    outputs: dict[str, Any] = {'boxes': boxes}
     if settings.node.publish_tree:
         inner = [] if result is None else result.inner_boxes
         inner_objects = [] if result is None else result.inner_object_indices
@@ -306,6 +349,7 @@ def output_messages(
     grasps = [] if result is None else result.grasps
     outputs['grasps'] = grasp_pose_array(grasps, header)
     outputs['grasp_candidates'] = grasp_candidates_cloud(grasps, header)
+    outputs['support'] = support_polygon(support, header)
     return outputs
 
 

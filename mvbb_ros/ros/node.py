@@ -1,5 +1,5 @@
 """
-The `decomposer` node: segmented PointCloud2 in, boxes and grasp poses out.
+The `decomposer` node: a table-top scene's or an object's PointCloud2 in, boxes and grasps out.
 
 Topics (relative names, remappable):
 
@@ -14,6 +14,8 @@ Topics (relative names, remappable):
 - ``~/grasps`` (geometry_msgs/PoseArray): grasp poses, best first;
 - ``~/grasp_candidates`` (sensor_msgs/PointCloud2): one point per grasp, in the order of
   ``~/grasps``, with the opening it needs, its score and its indices;
+- ``~/support`` (geometry_msgs/PolygonStamped): the outline of the table the objects stand on
+  (no points when the cloud has none; ``~/boxes`` draws it too, namespace ``support``);
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): counts, input rate and QoS, age of the last
   cloud, timings; once a second on the wall clock, so also under ``use_sim_time`` without
   ``/clock``.
@@ -174,9 +176,10 @@ def _our_changes(parameters: Sequence[Parameter]) -> dict[str, Any]:
 
 #: Said once at start when ``up_direction`` is not set: what the robot loses without it.
 UP_UNKNOWN_HINT = (
-    'up_direction is not set: grasps may approach from below the object and its hidden side '
-    'is a weaker guess; set it from TF (the z axis of the robot base in the cloud frame; '
-    'README, "Setting up_direction")'
+    'up_direction is not set: it comes from the support plane when the cloud shows a table '
+    '(support_plane: auto); on a segmented object grasps may approach from below and its '
+    'hidden side is a weaker guess; set it from TF (the z axis of the robot base in the '
+    'cloud frame; README, "Setting up_direction")'
 )
 
 
@@ -481,6 +484,14 @@ class DecomposerNode(Node):
                 }
             )
             values.update({f'{k}_ms': f'{v:.2f}' for k, v in result.timings_ms.items()})
+            values['up_source'] = result.up_source
+            if result.up is not None:
+                values['up'] = ' '.join(f'{v:.4f}' for v in result.up)
+            if result.support is not None:
+                values['support_plane'] = ' '.join(f'{v:.4f}' for v in result.support.coefficients)
+                values['support_inliers'] = result.support.inliers
+            elif result.support_note is not None:
+                values['no_support_because'] = result.support_note
             note = empty_grasps_note(result, self._settings)
             if note:
                 values['no_grasps_because'] = note

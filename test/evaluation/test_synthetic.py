@@ -8,7 +8,6 @@ scenes it looks at here are :mod:`mvbb_ros.evaluation.synthetic`'s.
 from __future__ import annotations
 
 import math
-import time
 
 from mvbb_ros.evaluation import camera, coverage
 from mvbb_ros.evaluation.camera import (
@@ -384,18 +383,13 @@ def test_organized_frame_has_about_the_requested_object_points():
     assert np.isnan(frame[0, 0]).all()  # corners show the background, NaN
 
 
-def test_default_size_frames_are_fast_enough():
-    """The default 640 x 480 ray cast and the 300k-point frame (one test at full size)."""
+def test_default_size_frames_have_their_full_sizes():
+    """The default 640 x 480 ray cast and the 300k-point frame, at full size (timed in benchmarks)."""
     scene = make_scene(seed=0)
     pose = orbit_pose([0.0, 0.0, 0.05], 0.8, -90.0, 35.0)
-    timings = []
-    for _ in range(3):  # best of three: a busy machine only slows some runs down
-        start = time.perf_counter()
-        points, labels = render_depth_cloud(scene, pose)
-        timings.append(time.perf_counter() - start)
+    points, labels = render_depth_cloud(scene, pose)
     assert points.shape == (480, 640, 3)
     assert labels.shape == (480, 640)
-    assert min(timings) < 1.5, f'640x480 ray cast took {min(timings):.2f} s'
     frame = organized_frame()
     count = np.count_nonzero(np.isfinite(frame[..., 2]))
     assert count == pytest.approx(300_000, rel=0.05)

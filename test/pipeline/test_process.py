@@ -177,6 +177,7 @@ def test_the_crop_while_decoding_gives_what_the_filters_give_on_points():
     assert set(decoded.timings_ms) == {
         'decode',
         'filter',
+        'scene',
         'objects',
         'completion',
         'decompose',

@@ -14,6 +14,7 @@ from mvbb_ros.geometry.decomposition.tree import DecompositionSettings
 from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import COMPLETIONS
+from mvbb_ros.pipeline.scene import SceneSettings
 from mvbb_ros.pipeline.settings import (
     FilterSettings,
     NodeSettings,
@@ -51,6 +52,7 @@ def test_every_spec_sets_a_typed_field_of_a_stage():
     assert len(names) == len(set(names))
     assert list(STAGES.values()) == [
         FilterSettings,
+        SceneSettings,
         ViewSettings,
         DecompositionSettings,
         GraspSettings,

@@ -16,7 +16,7 @@ import sys
 import time
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseArray
+from geometry_msgs.msg import PolygonStamped, PoseArray
 from mvbb_ros.cli.main import main
 from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.geometry.grasping.hypotheses import GraspStats
@@ -64,6 +64,7 @@ OUTPUT_TYPES_BY_TOPIC = {
     '/decomposer/box_list': PointCloud2,
     OUTPUT_GRASPS: PoseArray,
     '/decomposer/grasp_candidates': PointCloud2,
+    '/decomposer/support': PolygonStamped,
 }
 OUTPUT_TOPICS = tuple(OUTPUT_TYPES_BY_TOPIC)
 
@@ -206,6 +207,7 @@ def test_process_options_namespace_no_tree_and_compression(tmp_path, sqlite_bag)
         '/tuning/box_list': 3,
         '/tuning/grasps': 3,
         '/tuning/grasp_candidates': 3,
+        '/tuning/support': 3,
     }
     assert 'compression_mode: message' in (out / 'metadata.yaml').read_text()
     assert {topic: len(messages) for topic, messages in _read(out).items()} == summary.topics
@@ -353,7 +355,7 @@ def test_output_messages_follow_publish_tree_and_clear_on_failure():
     cloud = _cloud(l_shape_points(count=400), sec=1)
     settings = settings_from_mapping(FAST)
     result = process_cloud(cloud, settings)
-    every = ['boxes', 'tree', 'box_list', 'grasps', 'grasp_candidates']
+    every = ['boxes', 'tree', 'box_list', 'grasps', 'grasp_candidates', 'support']
     assert list(output_messages(result, cloud.header, settings)) == every
     no_tree = settings_from_mapping({**FAST, 'publish_tree': False})
     assert list(output_messages(result, cloud.header, no_tree)) == [
@@ -365,6 +367,7 @@ def test_output_messages_follow_publish_tree_and_clear_on_failure():
     for suffix in ('box_list', 'grasp_candidates'):
         assert cleared[suffix].width == 0 and cleared[suffix].header == cloud.header
         assert len(cleared[suffix].fields) > 3, 'an empty cloud still names its fields'
+    assert cleared['support'].polygon.points == [] and cleared['support'].header == cloud.header
 
 
 # Shared real bags ------------------------------------------------------------------------------

@@ -299,3 +299,31 @@ def test_late_subscribers_get_the_last_result():
 def _stamp(message) -> int:
     header = message.markers[0].header if isinstance(message, MarkerArray) else message.header
     return header.stamp.sec
+
+
+def test_a_table_top_frame_publishes_its_table_on_support(graph):
+    from mvbb_ros.evaluation.synthetic import table_top_frame
+
+    frame = table_top_frame(seed=1, count=2)
+    points = frame.points.reshape(-1, 3)
+    graph.publish_until_answered(
+        graph.publisher(), _cloud(points[np.isfinite(points).all(axis=1)])
+    )
+    assert graph.spin_until(lambda: any(s.header.stamp.sec == 42 for s in graph.supports))
+    support = [s for s in graph.supports if s.header.stamp.sec == 42][-1]
+    assert support.header.frame_id == 'camera_optical_frame'
+    assert support.header.stamp.nanosec == 7
+    corners = np.array([[p.x, p.y, p.z] for p in support.polygon.points])
+    assert len(corners) >= 3
+    a, b, c, d = frame.table_plane
+    assert np.all(np.abs(corners @ [a, b, c] + d) < 0.01), 'the outline lies on the table top'
+    boxes = [m for m in graph.boxes if m.markers[0].header.stamp.sec == 42][-1]
+    table = [m for m in boxes.markers if m.ns == 'support']
+    assert sorted(m.type for m in table) == [Marker.LINE_STRIP, Marker.TRIANGLE_LIST]
+    cubes = {m.ns for m in _leaf_markers(boxes, Marker.CUBE)}
+    assert cubes == {'object0/boxes', 'object1/boxes'}, 'two objects, no box on table or wall'
+
+    # A segmented object has no table: the outline is cleared.
+    graph.publish_until_answered(graph.publisher(), _cloud(l_shape_points(), sec=43))
+    assert graph.spin_until(lambda: any(s.header.stamp.sec == 43 for s in graph.supports))
+    assert not [s for s in graph.supports if s.header.stamp.sec == 43][-1].polygon.points

@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseArray
+from geometry_msgs.msg import PolygonStamped, PoseArray
 from mvbb_ros.ros.node import DecomposerNode
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import SetParameters
@@ -50,6 +50,7 @@ class Graph:
         self.candidates: list[PointCloud2] = []
         self.box_lists: list[PointCloud2] = []
         self.diagnostics: list[DiagnosticArray] = []
+        self.supports: list[PolygonStamped] = []
         reliable = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
         )
@@ -60,6 +61,7 @@ class Graph:
             (PointCloud2, '/decomposer/grasp_candidates', self.candidates),
             (PointCloud2, '/decomposer/box_list', self.box_lists),
             (DiagnosticArray, '/diagnostics', self.diagnostics),
+            (PolygonStamped, '/decomposer/support', self.supports),
         )
         for message_class, topic, messages in recorded:
             self.probe.create_subscription(message_class, topic, messages.append, reliable)

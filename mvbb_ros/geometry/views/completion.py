@@ -650,6 +650,7 @@ def complete_view(
     viewpoint: ArrayLike = (0.0, 0.0, 0.0),
     up: ArrayLike | None = None,
     spacing: float,
+    floor: float | None = None,
 ) -> CompletedView:
     """
     Return one object's observed points with an estimate of what the sensor could not see.
@@ -660,6 +661,9 @@ def complete_view(
         and laser frames).
     :param up: up direction in the points' frame (need not be unit), or None when unknown.
     :param spacing: point spacing (the voxel size), metres: the step of the samples.
+    :param floor: with `up`, the height along unit `up` of the support the object rests on
+        (metres), or None: the hidden side is filled down to it, not only to the lowest
+        observed point, and no estimate goes below it (the table ends the object).
     :return: the solid, observed points first.
     :raises ValueError: for an unknown method or a non-positive spacing.
     """
@@ -715,9 +719,11 @@ def complete_view(
         fill = fill[(across >= width.min()) & (across <= width.max())]
     parts = [both, fill]
     if unit_up is not None:
-        lowest = float(np.min(both @ unit_up))
+        lowest = float(np.min(both @ unit_up)) if floor is None else floor
         parts.append(fill_down(np.concatenate(parts), unit_up, lowest, spacing))
     estimated = np.concatenate(parts[1:])
+    if unit_up is not None and floor is not None:
+        estimated = estimated[estimated @ unit_up >= floor]
     estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
     return CompletedView(np.concatenate([pts, estimated]), len(pts), method, plane)
 

@@ -1,0 +1,288 @@
+"""
+The scene stage on real table-top frames and on rendered ones: objects found, table dropped.
+
+    .venv/bin/python benchmarks/scenes.py                 # the three real scenes, 50 rendered
+    .venv/bin/python benchmarks/scenes.py --frames 10     # fewer rendered frames
+
+Real scenes (the shared ``scenes/*.pcd``, organized 640 x 480): each is processed with the
+node's defaults (``support_plane: auto``) and with ``support_plane: none``. Ground truth:
+``mosd_learn33.pcd``'s own ``label`` field (1-9 table, 10 k + j a part of object k - 1; the
+PCD is LZF-compressed field by field, decoded here), and for the two PCL scenes the shared
+segmented scans cut from them (``pcl_kinect_laptop``/``pcl_kinect_box`` from the laptop frame,
+``pcl_stereo_mug`` from the stereo scene: the scene's points that are also a scan's points).
+Each observed point of a found object takes the label of its nearest raw point. An object is
+found when some found object's overlap with it (intersection over union, on the voxel grid's
+points) is at least 0.5. A box is on the background when most of its observed points are not
+a labelled object (the table, a wall, the floor, or an unlabelled thing). The reference plane
+is a strict fit of the same table: Open3D's ``segment_plane`` (5 mm, 5000 iterations) on the
+raw points within 3 cm of the found plane, then least squares on its inliers.
+
+Rendered scenes (:func:`mvbb_ros.evaluation.synthetic.table_top_frame`: 1 to 5 objects on a table, a
+wall behind it and the floor; 640 x 480 with the depth camera's noise): objects found against
+objects placed, the table's normal against the truth, and the share of each box's volume above
+the table (sampled; a box with less than 80 % above it reaches into the table).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+import os
+from pathlib import Path
+import re
+import struct
+import time
+
+from mvbb_ros.cli.cloud_io import load_cloud
+from mvbb_ros.evaluation.synthetic import table_top_frame
+from mvbb_ros.pipeline.filtering import filter_points
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.settings import PipelineSettings
+import numpy as np
+from scipy.spatial import cKDTree
+
+SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', '/work/shared/data'))
+SCENES = {
+    'mosd_learn33': None,
+    'pcl_kinect_laptop_box_frame': ('pcl_kinect_laptop', 'pcl_kinect_box'),
+    'pcl_table_scene_mug_stereo_textured': ('pcl_stereo_mug',),
+}
+
+
+def lzf_decompress(data: bytes, size: int) -> bytes:
+    """Return the LZF-decompressed `data` (`size` bytes out)."""
+    out = bytearray()
+    i = 0
+    while i < len(data):
+        control = data[i]
+        i += 1
+        if control < 32:
+            stop = i + control + 1
+            out += data[i:stop]
+            i = stop
+            continue
+        length = control >> 5
+        if length == 7:
+            length += data[i]
+            i += 1
+        reference = len(out) - ((control & 0x1F) << 8) - data[i] - 1
+        i += 1
+        length += 2
+        stop = reference + length
+        if stop <= len(out):
+            out += out[reference:stop]
+        else:
+            for k in range(length):
+                out.append(out[reference + k])
+    assert len(out) == size, (len(out), size)
+    return bytes(out)
+
+
+def read_labelled_pcd(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Return the finite points (N, 3) and their labels of a binary_compressed PCD."""
+    raw = path.read_bytes()
+    end = raw.index(b'DATA binary_compressed\n') + len(b'DATA binary_compressed\n')
+    header = raw[:end].decode('ascii')
+    fields = re.search(r'^FIELDS (.*)$', header, re.M).group(1).split()
+    sizes = [int(v) for v in re.search(r'^SIZE (.*)$', header, re.M).group(1).split()]
+    count = int(re.search(r'^POINTS (\d+)', header, re.M).group(1))
+    start = end + 8
+    compressed, size = struct.unpack('<II', raw[end:start])
+    stop = start + compressed
+    data = lzf_decompress(raw[start:stop], size)
+    columns, offset = {}, 0
+    for name, width in zip(fields, sizes, strict=True):
+        kind = np.uint32 if name in ('label', 'rgba', 'rgb') else np.float32
+        columns[name] = np.frombuffer(data, kind, count, offset)
+        offset += width * count
+    points = np.column_stack([columns['x'], columns['y'], columns['z']]).astype(np.float64)
+    finite = np.all(np.isfinite(points), axis=1)
+    return points[finite], columns['label'][finite].astype(np.int64)
+
+
+def scene_truth(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return a scene's finite points and labels: -1 background, k >= 0 object k."""
+    path = SHARED_DATA / 'scenes' / f'{name}.pcd'
+    if SCENES[name] is None:
+        points, labels = read_labelled_pcd(path)
+        return points, np.where(labels >= 10, labels // 10 - 1, -1)
+    points = load_cloud(path)
+    labels = np.full(len(points), -1)
+    tree = cKDTree(points)
+    for index, scan in enumerate(SCENES[name]):
+        scan_points = np.load(SHARED_DATA / 'scans' / f'{scan}.npy').astype(np.float64)
+        distance, nearest = tree.query(scan_points)
+        labels[nearest[distance < 1e-6]] = index
+    return points, labels
+
+
+def reference_normal(points: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """Return a strict least-squares fit of the plane near (normal, offset), same side up."""
+    import open3d as o3d
+
+    near = points[np.abs(points @ normal + offset) <= 0.03]
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(near))
+    o3d.utility.random.seed(0)
+    _, inliers = cloud.segment_plane(0.005, 3, 5000)
+    table = near[inliers]
+    centred = table - table.mean(axis=0)
+    reference = np.linalg.eigh(centred.T @ centred)[1][:, 0]
+    return reference if reference @ normal > 0 else -reference
+
+
+def angle_deg(first: np.ndarray, second: np.ndarray) -> float:
+    """Return the angle between two unit vectors in degrees."""
+    return float(np.degrees(np.arccos(np.clip(first @ second, -1.0, 1.0))))
+
+
+def real_scenes() -> None:
+    """Print the real scenes' table."""
+    print(
+        '| scene | support_plane | objects found | labelled objects found (IoU >= 0.5) '
+        '| IoU each | boxes | boxes on background | normal vs reference (deg) | ms |'
+    )
+    print('|---|---|---|---|---|---|---|---|---|')
+    for name in SCENES:
+        points, labels = scene_truth(name)
+        tree = cKDTree(points)
+        voxels, _ = filter_points(points, voxel_size=0.005)
+        voxel_labels = labels[tree.query(voxels)[1]]
+        truth = sorted(set(labels.tolist()) - {-1})
+        for mode in ('auto', 'none'):
+            settings = PipelineSettings().updated({'support_plane': mode})
+            start = time.perf_counter()
+            result = process_points(points, settings)
+            ms = (time.perf_counter() - start) * 1e3
+            found_labels = []
+            for item in result.objects:
+                observed = item.shape.points[: item.shape.observed]
+                found_labels.append(labels[tree.query(observed)[1]])
+            ious = []
+            for label in truth:
+                total = int(np.count_nonzero(voxel_labels == label))
+                best = 0.0
+                for mine in found_labels:
+                    common = int(np.count_nonzero(mine == label))
+                    best = max(best, common / (total + len(mine) - common))
+                ious.append(best)
+            background = 0
+            for item in result.objects:
+                observed = item.shape.points[: item.shape.observed]
+                for indices in item.decomposition.leaf_point_indices:
+                    mine = indices[indices < item.shape.observed]
+                    point_labels = labels[tree.query(observed[mine])[1]]
+                    background += int(np.mean(point_labels == -1) > 0.5) if len(mine) else 0
+            angle = '-'
+            if result.support is not None:
+                reference = reference_normal(points, result.support.normal, result.support.offset)
+                angle = f'{angle_deg(result.support.normal, reference):.2f}'
+            found = sum(iou >= 0.5 for iou in ious)
+            print(
+                f'| {name} | {mode} | {len(result.objects)} | {found} of {len(truth)} | '
+                f'{" ".join(f"{v:.2f}" for v in ious)} | {len(result.leaves)} | {background} | '
+                f'{angle} | {ms:.0f} |'
+            )
+
+
+def rendered_scenes(frames: int) -> None:
+    """Print the rendered scenes' summary."""
+    settings = PipelineSettings()
+    matched = 0
+    angles, worst_shares, rows = [], [], Counter()
+    below = 0
+    for seed in range(frames):
+        count = 1 + seed % 5
+        frame = table_top_frame(seed, count)
+        cloud = frame.points.reshape(-1, 3)
+        result = process_points(cloud[np.all(np.isfinite(cloud), axis=1)], settings)
+        plane = frame.table_plane
+        matched += len(result.objects) == count
+        rows[(count, len(result.objects))] += 1
+        if result.support is not None:
+            angles.append(angle_deg(result.support.normal, plane[:3]))
+        for box in result.leaves:
+            local = np.random.default_rng(0).uniform(-0.5, 0.5, (4000, 3)) * box.extents
+            share = float(np.mean(box.to_world(local) @ plane[:3] + plane[3] > 0.0))
+            worst_shares.append(share)
+            below += share < 0.8
+    print(
+        f'rendered frames: {frames}; objects found = objects placed in {matched} '
+        f'({100 * matched / frames:.0f} %)'
+    )
+    print(
+        'placed -> found (frames): '
+        + ', '.join(f'{p}->{f}: {n}' for (p, f), n in sorted(rows.items()))
+    )
+    print(
+        f'support found in {len(angles)} frames; normal error max {max(angles):.3f} deg, '
+        f'median {np.median(angles):.3f} deg'
+    )
+    print(
+        f'boxes: {len(worst_shares)}, with < 80 % of their volume above the table: {below}; '
+        f'smallest share above: {min(worst_shares):.3f}'
+    )
+
+
+def plane_fits(repeats: int = 20) -> None:
+    """Print the plane fit's time and normal error against Open3D's segment_plane."""
+    import subprocess
+    import sys
+
+    from mvbb_ros.pipeline.scene import fit_plane
+
+    command = [
+        sys.executable,
+        '-c',
+        'import time; t = time.perf_counter(); import open3d; print(time.perf_counter() - t)',
+    ]
+    imports = [
+        float(subprocess.run(command, capture_output=True, text=True, check=True).stdout)
+        for _ in range(3)
+    ]
+    import open3d as o3d
+
+    print(f'\nimporting open3d: median {np.median(imports):.2f} s of 3 fresh interpreters')
+    print(
+        '| scene | points | ours ms | open3d ms (1000 iterations) | ratio '
+        '| ours vs ref (deg) | open3d vs ref (deg) |'
+    )
+    print('|---|---|---|---|---|---|---|')
+    for name in SCENES:
+        points, _ = scene_truth(name)
+        voxels, _ = filter_points(points, voxel_size=0.005)
+        ours, theirs = [], []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            normal, offset = fit_plane(voxels, 0.01)
+            ours.append(time.perf_counter() - start)
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(voxels))
+            start = time.perf_counter()
+            model, _ = cloud.segment_plane(0.01, 3, 1000)
+            theirs.append(time.perf_counter() - start)
+        other = np.asarray(model[:3]) / np.linalg.norm(model[:3])
+        reference = reference_normal(points, normal, offset)
+        ours_ms, theirs_ms = np.median(ours) * 1e3, np.median(theirs) * 1e3
+        print(
+            f'| {name} | {len(voxels)} | {ours_ms:.1f} | {theirs_ms:.1f} | '
+            f'{ours_ms / theirs_ms:.2f} | {angle_deg(normal, reference):.3f} | '
+            f'{min(angle_deg(other, reference), angle_deg(-other, reference)):.3f} |'
+        )
+
+
+def main() -> None:
+    """Run the measurements."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
+    parser.add_argument('--frames', type=int, default=50, help='rendered frames (default 50)')
+    parser.add_argument('--no-real', action='store_true', help='skip the real scenes')
+    parser.add_argument('--fits', action='store_true', help='also time the plane fit')
+    args = parser.parse_args()
+    if not args.no_real:
+        real_scenes()
+    if args.fits:
+        plane_fits()
+    if args.frames:
+        rendered_scenes(args.frames)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,458 @@
+"""
+The scene stage: the support plane under the objects, and what stands on it.
+
+A table-top frame holds the table, what stands on it, and walls and floor around; a segmented
+object holds one object. :func:`find_scene` tells them apart and reduces a scene to what stands
+on its table:
+
+1. **Plane**: a RANSAC plane fit (random triples of a fixed-seed sample of the points, each
+   scored on that sample; the best refitted by least squares on all its inliers, twice), then
+   the largest connected patch of its inliers on a grid in the plane (the table, not every
+   point at table height in the room), refitted on that patch. The normal is turned towards the
+   viewpoint (the sensor looks at the table's top). With ``up`` known, only planes within
+   :data:`MAX_TILT_DEG` of it are tried.
+2. **Outline**: the convex hull of the patch's points projected into the plane.
+3. **Standing points**: more than ``support_distance`` above the plane (on the sensor's side),
+   at most ``support_max_height`` above it, and at least ``support_margin`` inside the
+   outline. The table, what lies below it (the floor) and what stands beside or behind it
+   (walls, whose foot is the outline's edge) are dropped.
+4. **Decision** (``support_plane: auto``): the plane is a support only when (a) its patch holds
+   at least ``support_min_fraction`` of the points, (b) at least ``min_points`` points stand on
+   it, and (c) the outline reaches at least :data:`EXTEND_M` beyond the standing points'
+   footprint in at least :data:`EXTEND_DIRECTIONS_MIN` of :data:`EXTEND_DIRECTIONS` directions
+   in the plane (a table reaches past its objects; a face of an object does not reach past the
+   rest of the object, and a convex object has nothing on the sensor's side of its faces, so
+   it fails (b)), and (d) no plane among the standing points holds :data:`WALL_SHARE` of the
+   plane's own points and is :data:`WALL_WIDTH_M` wide (then the plane is a wall and the table
+   stands on it). Up to :data:`CANDIDATES` planes are tried, largest first; the first that
+   passes is the support.
+   Otherwise the cloud is an already segmented object and passes unchanged.
+
+``support_plane: fixed`` takes the plane ``a x + b y + c z + d = 0`` from
+``support_coefficients`` ((a, b, c) pointing up, out of the table's top) and skips the fit and
+the decision. The region of interest (``roi_max_distance``, metres from the viewpoint) is
+applied before the filters (:func:`roi_mask`), so a room-sized cloud is cut down to the work
+surface before anything costly. Pure numpy and scipy: the fit is cheap on a sample, and keeps
+Open3D out of the node's start (``docs/performance.md`` compares it with Open3D's
+``segment_plane``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import get_args, Literal
+
+from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, perpendicular_axes
+from numba import njit
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
+
+#: What finds the support plane (the first is the library default): ``none`` (the cloud is one
+#: segmented object: the paper), ``auto`` (fit it, keep it only when the cloud is a scene) or
+#: ``fixed`` (``support_coefficients``).
+SupportMode = Literal['none', 'auto', 'fixed']
+SUPPORT_MODES: tuple[SupportMode, ...] = get_args(SupportMode)
+
+
+@dataclass(frozen=True)
+class SceneSettings:
+    """
+    The settings of the scene stage; the defaults are the paper's (no scene: one object).
+
+    :ivar support_plane: ``none``, ``auto`` or ``fixed`` (the module doc).
+    :ivar support_coefficients: (a, b, c, d) of the fixed plane ``a x + b y + c z + d = 0``,
+        (a, b, c) pointing up; used with ``fixed`` only.
+    :ivar support_distance: points this close to the plane (metres) are the table.
+    :ivar support_max_height: what stands higher above the plane (metres) is dropped.
+    :ivar support_margin: standing points lie at least this far inside the outline (metres).
+    :ivar support_min_fraction: the fitted plane's patch holds at least this share of the
+        points (``auto``).
+    :ivar roi_max_distance: points farther than this from the viewpoint (metres) are dropped
+        before anything else; 0 keeps them all.
+    """
+
+    support_plane: SupportMode = 'none'
+    support_coefficients: tuple[float, ...] = ()
+    support_distance: float = 0.01
+    support_max_height: float = 0.5
+    support_margin: float = 0.02
+    support_min_fraction: float = 0.15
+    roi_max_distance: float = 0.0
+
+
+#: Random triples tried, and the most points they are scored on.
+RANSAC_HYPOTHESES = 1024
+RANSAC_SAMPLE = 2048
+#: The least-squares refits use at most this many inliers (evenly strided).
+REFIT_POINTS = 16384
+#: With an up direction, only planes tilted at most this far from it are tried (degrees).
+MAX_TILT_DEG = 30.0
+#: The grid of the inlier patch: this many point spacings, at least :data:`PATCH_CELL_MIN_M`.
+PATCH_CELLS = 4.0
+PATCH_CELL_MIN_M = 0.01
+#: At most this many planes are tried as the support, largest first (each fitted to the points
+#: the previous ones' patches left).
+CANDIDATES = 3
+#: A plane with another plane standing on it that holds this share of its own patch's points
+#: and is this wide (metres, its narrower side) is a wall with the table in front of it: an
+#: object's face is much smaller than its table.
+WALL_SHARE = 0.1
+WALL_WIDTH_M = 0.35
+#: The decision's reach: the outline must pass the standing footprint by this much (metres)...
+EXTEND_M = 0.05
+#: ... in at least this many of these many evenly spread directions in the plane.
+EXTEND_DIRECTIONS = 8
+EXTEND_DIRECTIONS_MIN = 6
+
+
+@dataclass(frozen=True, eq=False)
+class SupportPlane:
+    """
+    The plane the objects stand on, in the cloud's frame.
+
+    :ivar normal: (3,) unit normal, pointing up (to the sensor's side).
+    :ivar offset: d of ``normal . x + d = 0`` (metres).
+    :ivar outline: (K, 3) the table's outline in the plane, counter-clockwise seen from above
+        (K = 0 when a fixed plane has no points near it).
+    :ivar inliers: how many points lie on the table (its patch).
+    :ivar fixed: the plane was given (``fixed``), not fitted.
+    """
+
+    normal: FloatArray
+    offset: float
+    outline: FloatArray
+    inliers: int
+    fixed: bool = False
+
+    @property
+    def coefficients(self) -> tuple[float, float, float, float]:
+        """Return (a, b, c, d) of ``a x + b y + c z + d = 0``, (a, b, c) the unit normal."""
+        a, b, c = (float(v) for v in self.normal)
+        return a, b, c, float(self.offset)
+
+    def heights(self, points: ArrayLike) -> FloatArray:
+        """Return the signed heights of `points` (N, 3) above the plane, metres."""
+        return np.asarray(points, dtype=np.float64) @ self.normal + self.offset
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """
+    What the scene stage found.
+
+    :ivar support: the support plane, or None (the cloud is one segmented object).
+    :ivar kept: indices of the points that stand on the support (sorted), or None for all.
+    :ivar reason: why there is no support (``auto``), else None.
+    """
+
+    support: SupportPlane | None
+    kept: IndexArray | None
+    reason: str | None = None
+
+
+def roi_mask(points: FloatArray, viewpoint: ArrayLike, max_distance: float) -> BoolArray | None:
+    """Return which `points` lie within `max_distance` of `viewpoint`, None when all do."""
+    if max_distance <= 0.0 or len(points) == 0:
+        return None
+    eye = np.asarray(viewpoint, dtype=np.float64)
+    offsets = points - eye.astype(points.dtype)
+    inside: BoolArray = np.einsum('ij,ij->i', offsets, offsets) <= max_distance**2
+    return None if bool(inside.all()) else inside
+
+
+def _plane_through(points: FloatArray) -> tuple[FloatArray, float]:
+    """Return the least-squares plane (unit normal, offset) of `points` (N >= 3)."""
+    points = points[:: max(1, len(points) // REFIT_POINTS)]
+    center = points.mean(axis=0)
+    centred = points - center
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    normal = vectors[:, 0]
+    return normal, -float(normal @ center)
+
+
+def fit_plane(
+    points: FloatArray,
+    distance: float,
+    up: FloatArray | None = None,
+    seed: int = 0,
+) -> tuple[FloatArray, float] | None:
+    """
+    Return the plane (unit normal, offset) that most of `points` lie within `distance` of.
+
+    RANSAC on a fixed-seed sample (deterministic), refined by least squares on the inliers
+    among all points. With `up` (unit), only planes within :data:`MAX_TILT_DEG` of it count. None
+    when no plane is found (fewer than 3 points, all collinear, or none near `up`).
+    """
+    count = len(points)
+    if count < 3:
+        return None
+    rng = np.random.default_rng(seed)
+    sample = points[rng.integers(0, count, min(count, RANSAC_SAMPLE))]
+    triples = sample[rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))]
+    normals = cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    lengths = np.linalg.norm(normals, axis=1)
+    usable = lengths > 1e-12
+    if up is not None:
+        cosine = math.cos(math.radians(MAX_TILT_DEG))
+        usable &= np.abs(normals @ up) >= cosine * lengths
+    if not usable.any():
+        return None
+    normals = normals[usable] / lengths[usable, None]
+    offsets = -np.einsum('ij,ij->i', normals, triples[usable, 0])
+    scores = _count_near(sample, normals, offsets, distance)
+    best = int(np.argmax(scores))
+    normal, offset = normals[best], float(offsets[best])
+    near = np.abs(points @ normal + offset) <= distance
+    if np.count_nonzero(near) >= 3:
+        normal, offset = _plane_through(points[near])
+    return normal, offset
+
+
+@njit('int64[:](float64[:, :], float64[:, :], float64[:], float64)', cache=True)
+def _count_near(
+    points: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float
+) -> IndexArray:
+    """Return, for each plane (normal, offset), how many `points` lie within `distance`."""
+    counts = np.zeros(normals.shape[0], dtype=np.int64)
+    for h in range(normals.shape[0]):
+        a, b, c, d = normals[h, 0], normals[h, 1], normals[h, 2], offsets[h]
+        count = 0
+        for i in range(points.shape[0]):
+            if abs(a * points[i, 0] + b * points[i, 1] + c * points[i, 2] + d) <= distance:
+                count += 1
+        counts[h] = count
+    return counts
+
+
+def _largest_patch(flat: FloatArray, cell: float) -> IndexArray:
+    """Return the indices of the points of the largest 8-connected patch of `flat` (N, 2)."""
+    low = flat.min(axis=0)
+    cells = ((flat - low) / cell).astype(np.int64)
+    shape = tuple(int(v) + 1 for v in cells.max(axis=0))
+    occupied = np.zeros(shape, dtype=bool)
+    occupied[cells[:, 0], cells[:, 1]] = True
+    labels, _ = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
+    point_labels = labels[cells[:, 0], cells[:, 1]]
+    sizes = np.bincount(point_labels)
+    sizes[0] = 0
+    return np.flatnonzero(point_labels == int(np.argmax(sizes)))
+
+
+def _outline_2d(flat: FloatArray) -> FloatArray:
+    """Return the convex hull of `flat` (N, 2), counter-clockwise; empty when degenerate."""
+    if len(flat) < 3:
+        return np.empty((0, 2))
+    try:
+        hull = ConvexHull(flat)
+    except QhullError:
+        return np.empty((0, 2))
+    return flat[hull.vertices]  # counter-clockwise for 2D input
+
+
+def inside_outline(flat: FloatArray, outline: FloatArray, margin: float) -> BoolArray:
+    """Tell which of `flat` (N, 2) lie at least `margin` inside the convex `outline` (K, 2)."""
+    if len(outline) < 3:
+        return np.ones(len(flat), dtype=bool)
+    edges = np.roll(outline, -1, axis=0) - outline
+    outward = np.column_stack([edges[:, 1], -edges[:, 0]])
+    outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
+    limits = np.einsum('ij,ij->i', outward, outline) - margin
+    inside = np.ones(len(flat), dtype=bool)
+    for k in range(len(outline)):
+        inside &= flat @ outward[k] <= limits[k]
+    return inside
+
+
+def _reach(outline: FloatArray, footprint: FloatArray) -> int:
+    """Return in how many of the directions the outline passes `footprint` by EXTEND_M."""
+    angles = np.arange(EXTEND_DIRECTIONS) * (2.0 * math.pi / EXTEND_DIRECTIONS)
+    directions = np.column_stack([np.cos(angles), np.sin(angles)])
+    beyond = (outline @ directions.T).max(axis=0) - (footprint @ directions.T).max(axis=0)
+    return int(np.count_nonzero(beyond >= EXTEND_M))
+
+
+def _width(flat: FloatArray) -> float:
+    """Return the narrower side of the principal-axes rectangle of `flat` (N, 2)."""
+    centred = flat - flat.mean(axis=0)
+    axes = np.linalg.eigh(centred.T @ centred)[1]
+    return float(np.min(np.ptp(centred @ axes, axis=0)))
+
+
+def _frame(normal: FloatArray) -> FloatArray:
+    """Return (2, 3) in-plane axes making a right-handed frame with `normal`."""
+    first, second = perpendicular_axes(normal)
+    return np.stack([first, second])
+
+
+@dataclass(frozen=True, eq=False)
+class _Candidate:
+    """A plane of the cloud: its (oriented) normal and offset, and its patch's point indices."""
+
+    normal: FloatArray
+    offset: float
+    patch: IndexArray
+
+
+def _oriented(normal: FloatArray, offset: float, eye: FloatArray) -> tuple[FloatArray, float]:
+    """Return the plane turned so that `eye` lies on its positive side."""
+    return (-normal, -offset) if normal @ eye + offset < 0.0 else (normal, offset)
+
+
+def _patch(
+    points: FloatArray, normal: FloatArray, offset: float, distance: float, cell: float
+) -> IndexArray:
+    """Return the indices of the largest connected patch of the plane's inliers."""
+    near = np.flatnonzero(np.abs(points @ normal + offset) <= distance)
+    if len(near) < 3:
+        return near
+    return near[_largest_patch(points[near] @ _frame(normal).T, cell)]
+
+
+def _next_plane(
+    points: FloatArray,
+    rest: BoolArray,
+    distance: float,
+    up: FloatArray | None,
+    eye: FloatArray,
+    cell: float,
+) -> _Candidate | None:
+    """Return the largest plane among the `rest` of `points`, refitted on its patch."""
+    indices = np.flatnonzero(rest)
+    plane = fit_plane(points[indices], distance, up)
+    if plane is None:
+        return None
+    patch = indices[_patch(points[indices], *plane, distance, cell)]
+    if len(patch) < 3:
+        return None
+    normal, offset = _oriented(*_plane_through(points[patch]), eye)
+    return _Candidate(normal, offset, patch)
+
+
+def _standing(
+    points: FloatArray,
+    normal: FloatArray,
+    offset: float,
+    outline: FloatArray,
+    settings: SceneSettings,
+) -> BoolArray:
+    """Tell which `points` stand on the plane, inside its (2D) `outline`."""
+    heights = points @ normal + offset
+    standing = (heights > settings.support_distance) & (heights <= settings.support_max_height)
+    candidates = np.flatnonzero(standing)
+    flat = points[candidates] @ _frame(normal).T
+    standing[candidates] = inside_outline(flat, outline, settings.support_margin)
+    return standing
+
+
+def find_scene(
+    points: FloatArray,
+    settings: SceneSettings,
+    *,
+    viewpoint: ArrayLike = (0.0, 0.0, 0.0),
+    up: ArrayLike | None = None,
+    spacing: float,
+    min_points: int,
+) -> Scene:
+    """
+    Find the support plane of `points` (N, 3) float64, metres, and what stands on it.
+
+    :param points: the filtered points.
+    :param settings: the stage's settings.
+    :param viewpoint: (3,) the sensor position in the points' frame.
+    :param up: the up direction given by the user, or None.
+    :param spacing: the point spacing (metres): the grid of the table's patch.
+    :param min_points: the fewest standing points of a scene (``auto``).
+    :return: the scene; without a support (``none``, or ``auto`` on a segmented object) every
+        point is kept.
+    """
+    mode = settings.support_plane
+    if mode == 'none' or len(points) < 3:
+        return Scene(None, None, 'support_plane: none' if mode == 'none' else 'too few points')
+    eye = np.asarray(viewpoint, dtype=np.float64)
+    unit_up = None
+    if up is not None:
+        unit_up = np.asarray(up, dtype=np.float64)
+        unit_up = unit_up / np.linalg.norm(unit_up)
+    distance = settings.support_distance
+    cell = max(PATCH_CELLS * spacing, PATCH_CELL_MIN_M)
+    if mode == 'fixed':
+        coefficients = np.asarray(settings.support_coefficients, dtype=np.float64)
+        scale = float(np.linalg.norm(coefficients[:3]))
+        normal, offset = coefficients[:3] / scale, float(coefficients[3]) / scale
+        patch = _patch(points, normal, offset, distance, cell)
+        outline = _outline_2d(points[patch] @ _frame(normal).T)
+        kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))
+        return Scene(_support(normal, offset, outline, len(patch), True), kept)
+    rest = np.ones(len(points), dtype=bool)
+    least = max(3, settings.support_min_fraction * len(points))
+    reasons = []
+    for number in range(CANDIDATES):
+        candidate = _next_plane(points, rest, distance, unit_up, eye, cell)
+        if candidate is None or len(candidate.patch) < least:
+            break
+        rest[candidate.patch] = False
+        normal, offset = candidate.normal, candidate.offset
+        frame = _frame(normal)
+        outline = _outline_2d(points[candidate.patch] @ frame.T)
+        kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))
+        if len(kept) < min_points:
+            reasons.append(f'plane {number}: {len(kept)} points stand on it')
+            continue
+        reach = _reach(outline, points[kept] @ frame.T)
+        if reach < EXTEND_DIRECTIONS_MIN:
+            reasons.append(
+                f'plane {number}: reaches past what stands on it in {reach} of '
+                f'{EXTEND_DIRECTIONS} directions'
+            )
+            continue
+        # A table in front of a wall stands on the wall: a large plane among the standing points
+        # says that this plane is the wall.
+        other = _next_plane(
+            points[kept], np.ones(len(kept), dtype=bool), distance, None, eye, cell
+        )
+        if (
+            other is not None
+            and len(other.patch) >= WALL_SHARE * len(candidate.patch)
+            and _width(points[kept][other.patch] @ _frame(other.normal).T) >= WALL_WIDTH_M
+        ):
+            reasons.append(f'plane {number}: another large plane stands on it (a wall?)')
+            continue
+        return Scene(_support(normal, offset, outline, len(candidate.patch), False), kept)
+    if not reasons:
+        return Scene(
+            None,
+            None,
+            'no plane holds support_min_fraction '
+            f'{100 * settings.support_min_fraction:g} % of the points',
+        )
+    return Scene(None, None, 'no support: ' + '; '.join(reasons))
+
+
+def _support(
+    normal: FloatArray, offset: float, outline: FloatArray, inliers: int, fixed: bool
+) -> SupportPlane:
+    """Return the support plane with its 2D `outline` put into 3D."""
+    corners = outline @ _frame(normal) - offset * normal if len(outline) else np.empty((0, 3))
+    return SupportPlane(normal, offset, corners, inliers, fixed)
+
+
+def warm_up() -> None:
+    """Run every kernel of this module once (see :mod:`mvbb_ros.kernels`)."""
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
+    fit_plane(np.column_stack([grid, np.zeros(len(grid))]), 0.01)
+
+
+__all__ = [
+    'find_scene',
+    'fit_plane',
+    'inside_outline',
+    'roi_mask',
+    'Scene',
+    'SceneSettings',
+    'SUPPORT_MODES',
+    'SupportMode',
+    'SupportPlane',
+]

@@ -1,0 +1,172 @@
+"""
+The scene stage: the table under the objects, what stands on it, and clouds without a table.
+
+Synthetic table-top frames (``cli/synthetic.py``: objects on a table, a wall behind it and the
+floor, seen by the project's depth camera) must give one object per object placed, no box
+below the table and the table's normal within 2 degrees; a segmented object must give the
+same boxes and grasps with ``support_plane: auto`` as with ``none``, bit for bit, on every
+real scan of the shared data.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from support.data import SHARED_DATA
+from hypothesis import given
+from hypothesis import settings as hypothesis_settings
+from hypothesis import strategies as st
+from mvbb_ros.arrays import perpendicular_axes
+from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.scene import find_scene, inside_outline, roi_mask, SceneSettings
+from mvbb_ros.pipeline.settings import PipelineSettings
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+SCANS = SHARED_DATA / 'scans'
+
+
+def _finite(points: np.ndarray) -> np.ndarray:
+    flat = points.reshape(-1, 3)
+    return flat[np.all(np.isfinite(flat), axis=1)]
+
+
+def _share_above(box, plane: np.ndarray) -> float:
+    """Return the share of `box`'s volume above `plane` (a, b, c, d), sampled."""
+    local = np.random.default_rng(0).uniform(-0.5, 0.5, (4000, 3)) * box.extents
+    return float(np.mean(box.to_world(local) @ plane[:3] + plane[3] > 0.0))
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_table_top_frames_give_one_object_per_object_placed(seed):
+    frame = table_top_frame(seed, 1 + seed)
+    result = process_points(_finite(frame.points), PipelineSettings())
+
+    assert result.warning is None
+    assert len(result.objects) == frame.objects
+    support = result.support
+    assert support is not None and not support.fixed
+    truth = frame.table_plane
+    angle = np.degrees(np.arccos(min(1.0, float(support.normal @ truth[:3]))))
+    assert angle < 2.0, 'the normal points up, within 2 degrees'
+    assert abs(support.offset - truth[3]) < 0.01
+    assert result.up_source == 'support plane'
+    np.testing.assert_allclose(result.up, support.normal)
+    for box in result.leaves:
+        assert _share_above(box, truth) >= 0.8, 'no box below the table'
+    # A resting object's hidden side ends at the table: filled down to it, never below it.
+    for item in result.objects:
+        heights = item.shape.points @ truth[:3] + truth[3]
+        assert heights.min() > -0.005
+        if item.shape.plane is not None:
+            assert heights.min() < 0.01
+    # No grasp approaches through the table: every pre-grasp position is above it.
+    for grasp in result.grasps:
+        assert grasp.position @ truth[:3] + truth[3] > 0.0
+
+
+def test_a_fixed_plane_is_used_as_given():
+    frame = table_top_frame(2, 3)
+    coefficients = [float(v) for v in 2.0 * frame.table_plane]  # any scale
+    settings = PipelineSettings().updated(
+        {'support_plane': 'fixed', 'support_coefficients': coefficients}
+    )
+    result = process_points(_finite(frame.points), settings)
+    assert result.support is not None and result.support.fixed
+    np.testing.assert_allclose(result.support.coefficients, frame.table_plane, atol=1e-12)
+    assert len(result.objects) == 3
+
+
+def test_a_fixed_plane_needs_its_coefficients():
+    with pytest.raises(ValueError, match='support_coefficients'):
+        PipelineSettings().updated({'support_plane': 'fixed'})
+
+
+def _same_result(first, second) -> None:
+    assert first.warning == second.warning
+    assert first.counts == second.counts
+    assert len(first.leaves) == len(second.leaves)
+    for mine, other in zip(first.leaves, second.leaves, strict=True):
+        np.testing.assert_array_equal(mine.center, other.center)
+        np.testing.assert_array_equal(mine.rotation, other.rotation)
+        np.testing.assert_array_equal(mine.extents, other.extents)
+    assert len(first.grasps) == len(second.grasps)
+    for mine, other in zip(first.grasps, second.grasps, strict=True):
+        np.testing.assert_array_equal(mine.position, other.position)
+        np.testing.assert_array_equal(mine.quaternion, other.quaternion)
+        assert (mine.width, mine.score) == (other.width, other.score)
+
+
+def _auto_and_none(points: np.ndarray) -> None:
+    auto = process_points(points, PipelineSettings())
+    none = process_points(
+        points, PipelineSettings().updated({'support_plane': 'none', 'roi_max_distance': 0.0})
+    )
+    assert auto.support is None, auto.support_note
+    assert auto.support_note is not None
+    _same_result(auto, none)
+
+
+def test_a_segmented_object_is_processed_as_without_the_scene_stage():
+    _auto_and_none(segmented_object_cloud('mug', seed=0).astype(np.float64))
+
+
+@pytest.mark.skipif(not SCANS.is_dir(), reason=f'shared data absent: {SCANS}')
+@pytest.mark.parametrize(
+    'name', sorted(path.name for path in SCANS.glob('*.npy')) if SCANS.is_dir() else []
+)
+def test_every_real_scan_is_processed_as_without_the_scene_stage(name):
+    _auto_and_none(np.load(Path(SCANS, name)))
+
+
+def test_the_region_of_interest_drops_far_points():
+    points = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 5.0], [3.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(roi_mask(points, (0, 0, 0), 3.0), [True, False, True])
+    assert roi_mask(points, (0, 0, 0), 0.0) is None
+    assert roi_mask(points, (0, 0, 0), 10.0) is None
+
+
+def _table_with_a_box(rotation: np.ndarray, height: float, seed: int) -> np.ndarray:
+    """Return a 0.8 x 0.6 m table (local z = 0) with a 10 cm box on it, in a turned frame."""
+    rng = np.random.default_rng(seed)
+    table = np.column_stack(
+        [rng.uniform(-0.4, 0.4, 6000), rng.uniform(-0.3, 0.3, 6000), rng.normal(0, 0.002, 6000)]
+    )
+    box = rng.uniform([-0.05, -0.05, 0.0], [0.05, 0.05, 0.1], (1500, 3))
+    return np.concatenate([table, box]) @ rotation.T + rotation @ [0.0, 0.0, height]
+
+
+@hypothesis_settings(max_examples=25, deadline=None)
+@given(
+    quaternion=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(
+        lambda q: np.linalg.norm(q) > 0.1
+    ),
+    height=st.floats(-2.0, 2.0),
+    eye_xy=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)),
+    seed=st.integers(0, 1000),
+)
+def test_the_plane_faces_the_sensor_and_its_outline_holds_its_points(
+    quaternion, height, eye_xy, seed
+):
+    rotation = Rotation.from_quat(quaternion).as_matrix()
+    points = _table_with_a_box(rotation, height, seed)
+    up = rotation[:, 2]
+    eye = rotation @ [eye_xy[0], eye_xy[1], height + 1.0]
+    scene = find_scene(
+        points, SceneSettings(support_plane='auto'), viewpoint=eye, spacing=0.01, min_points=25
+    )
+    support = scene.support
+    assert support is not None, scene.reason
+    assert support.heights(eye[None])[0] > 0.0, 'the normal points to the sensor'
+    assert abs(support.normal @ up - 1.0) < 1e-3
+    assert np.all(np.abs(support.heights(support.outline)) < 1e-9), 'the outline is in the plane'
+    # Seen from above (the module's frame: first, second, normal), the outline is
+    # counter-clockwise and holds every table point's projection.
+    axes = np.stack(perpendicular_axes(support.normal))
+    table = points[np.abs(support.heights(points)) <= 0.01]
+    assert np.all(inside_outline(table @ axes.T, support.outline @ axes.T, -1e-9))
+    # The box stands on the table (its lowest centimetre is counted as table), the table goes.
+    assert scene.kept is not None and len(scene.kept) >= 1275  # the lowest 1 cm goes
+    assert np.all(support.heights(points[scene.kept]) > 0.01)
