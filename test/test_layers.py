@@ -147,7 +147,7 @@ TOP_LEVEL = {
     'arrays': set(),
     'compile_time': set(),
     'kernel_cache': set(),
-    'kernels': {'compile_time'},
+    'kernels': {'compile_time', 'kernel_cache'},
 }
 
 #: The geometry's subsystems, and which of them each may import: box.py is the type all of
