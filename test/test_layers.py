@@ -28,7 +28,9 @@ def _module_name(path: Path) -> str:
 
 
 MODULES = sorted(_module_name(path) for path in PACKAGE.rglob('*.py'))
-OUTSIDE_ROS = [name for name in MODULES if not name.startswith('mvbb_ros.ros')]
+#: The fleet (mvbb_ros/fleet) sits above ros/ and may load it; every other layer must not.
+ABOVE_ROS = ('mvbb_ros.ros', 'mvbb_ros.fleet')
+OUTSIDE_ROS = [name for name in MODULES if not name.startswith(ABOVE_ROS)]
 
 #: Loaded after importing each module in turn; the ROS packages must not appear outside ros/.
 _PROBE = """
@@ -113,7 +115,9 @@ def test_the_package_and_the_node_executable_load_no_kernels():
 
 def test_every_module_is_imported_by_the_layer_test():
     assert set(MODULES) - set(OUTSIDE_ROS) == {
-        name for name in MODULES if name.split('.')[:2] == ['mvbb_ros', 'ros']
+        name
+        for name in MODULES
+        if name.split('.')[:2] in (['mvbb_ros', 'ros'], ['mvbb_ros', 'fleet'])
     }
     assert 'mvbb_ros.ros.node' in MODULES and 'mvbb_ros.geometry.fit' in MODULES
 
@@ -127,7 +131,16 @@ ALLOWED = {
     'evaluation': {'arrays', 'common', 'geometry', 'evaluation'},
     'ros': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'ros'},
     'cli': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'evaluation', 'cli'},
+    'fleet': {'arrays', 'common', 'geometry', 'pipeline', 'ros', 'fleet'},
 }
+
+
+def test_nothing_imports_the_fleet_at_module_level():
+    """Only `mvbb fleet` loads the fleet (and Ray), inside the command."""
+    for path in sorted(PACKAGE.rglob('*.py')):
+        if path.parent.name != 'fleet':
+            imports = _module_level_imports(path)
+            assert not [name for name in imports if name.startswith('mvbb_ros.fleet')], path
 
 
 def _module_level_imports(path: Path) -> list[str]:
