@@ -103,8 +103,9 @@ def fleet_run(manifest: Path, output: Path, workers: int) -> dict[str, float | s
         command += ['--topic', topic]
     before = _load()
     start = time.perf_counter()
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    text = subprocess.run(command, check=True, capture_output=True, text=True).stdout
     wall = time.perf_counter() - start
+    busy = next((line for line in text.splitlines() if line.startswith('workers: ')), '')
     rows = pq.read_table(output / 'summary.parquet').to_pylist()
     done = sorted(row['done_s'] for row in rows if row['done_s'] is not None)
     span = done[-1] - done[0] if len(done) > 1 else float('nan')
@@ -118,6 +119,7 @@ def fleet_run(manifest: Path, output: Path, workers: int) -> dict[str, float | s
         'load_before': before,
         'load_after': _load(),
         'failed': sum(1 for row in rows if row['status'] == 'failed'),
+        'cpu_share': busy.split('(')[1].split(':')[0] if '(' in busy else '?',
     }
 
 
@@ -126,6 +128,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', type=Path, default=REPO / 'out' / 'fleet_bench')
     parser.add_argument('--repeats', type=int, default=2)
+    parser.add_argument(
+        '--first-repeat', type=int, default=0, help='number of the first repeat (to add runs)'
+    )
     parser.add_argument('--frames', type=int, default=10, help='clouds per demo scene')
     parser.add_argument('--shared', type=Path, default=Path('/work/shared/data/bags'))
     args = parser.parse_args()
@@ -136,12 +141,15 @@ def main() -> int:
     manifest.write_text(''.join(f'{bag}\n' for bag in bags))
     print(f'{len(bags)} bags; load {_load()}', flush=True)
     header = '| workers | wall s | clouds | clouds/s | processing clouds/s | first cloud s '
-    header += '| load before | load after | identical | failed |'
+    header += "| load before | load after | identical | failed | workers' CPU share |"
     serial_s = serial_reference(bags, args.out / 'serial')
-    print(f'serial bag process, one after another: {serial_s:.1f} s; load {_load()}', flush=True)
+    print(
+        f'serial bag process (bags not done before): {serial_s:.1f} s; load {_load()}',
+        flush=True,
+    )
     print(header, flush=True)
     runs = []
-    for repeat in range(args.repeats):
+    for repeat in range(args.first_repeat, args.first_repeat + args.repeats):
         for workers in (1, 2):
             output = args.out / f'run{repeat}_w{workers}'
             if output.exists():
@@ -154,7 +162,8 @@ def main() -> int:
             runs.append(figures)
             row = (
                 '| {workers} | {wall_s:.1f} | {clouds} | {per_s:.2f} | {processing_per_s:.2f} '
-                '| {first_done_s:.1f} | {load_before} | {load_after} | {identical} | {failed} |'
+                '| {first_done_s:.1f} | {load_before} | {load_after} | {identical} | {failed} '
+                '| {cpu_share} |'
             )
             print(row.format(**figures), flush=True)
     for key in ('per_s', 'processing_per_s'):

@@ -649,6 +649,12 @@ def _run_fleet(args: argparse.Namespace) -> int:
         f'failed; {result.clouds} clouds in {result.wall_seconds:.1f} s ({rate:.2f} clouds/s, '
         f'{result.workers} workers, {retries} retries)'
     )
+    wall, cpu = result.busy_seconds
+    if wall > 0:
+        print(
+            f'workers: {wall:.1f} s in tasks, {cpu:.1f} s of CPU ({100 * cpu / wall:.0f} %: below '
+            '100 when the machines are shared or storage is slow)'
+        )
     for report in result.failed:
         label = f'{report.job.label}/' if report.job.label else ''
         print(f'failed: {label}{report.job.name}: {report.error}', file=sys.stderr)

@@ -72,6 +72,7 @@ class BagReport:
     ranges: int = 1
     reruns: int = 0
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
 
 
 @dataclass
@@ -88,6 +89,12 @@ class FleetResult:
     def failed(self) -> list[BagReport]:
         """Return the bags that failed."""
         return [report for report in self.reports if report.status == 'failed']
+
+    @property
+    def busy_seconds(self) -> tuple[float, float]:
+        """Return the workers' task seconds: wall clock and CPU (their ratio: the CPU share)."""
+        processed = [r for r in self.reports if r.status != 'resumed']
+        return sum(r.seconds for r in processed), sum(r.cpu_seconds for r in processed)
 
     @property
     def clouds(self) -> int:
@@ -202,6 +209,7 @@ class _Driver:
         kind, report = task[0], task[1]
         report.retries += max(0, outcome.attempts - 1)
         report.seconds += outcome.seconds
+        report.cpu_seconds += outcome.cpu_seconds
         if kind == 'range':
             self._range_done(report, task[2], outcome)
             return

@@ -107,6 +107,8 @@ class Outcome:
     :ivar error: why the bag failed ('' when it did not).
     :ivar attempts: how many times the task was started (2 or more: Ray retried it).
     :ivar seconds: the task's wall time.
+    :ivar cpu_seconds: the CPU time the worker process spent on it (less than `seconds` when
+        the machine is shared or the task waits on storage).
     :ivar start_memory: for a range: the grasp memory at its start (rebuilt), pickled.
     :ivar end_memory: for a range: the grasp memory at its end, pickled.
     :ivar worker: host and process that ran it.
@@ -116,6 +118,7 @@ class Outcome:
     error: str = ''
     attempts: int = 1
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     start_memory: bytes = b''
     end_memory: bytes = b''
     worker: str = ''
@@ -271,7 +274,7 @@ class BagWorker:
 
     def process(self, job: BagJob) -> Outcome:
         """Run `mvbb bag process` on a whole bag into ``job.output``; write its manifest."""
-        start = time.time()
+        start, cpu = time.time(), time.process_time()
         outcome = Outcome(worker=self.identity)
         try:
             outcome.attempts = _claim_attempt(job.staging, 'bag')
@@ -294,6 +297,7 @@ class BagWorker:
         except Exception as error:  # a bag must not stop the fleet; the summary says why
             outcome.error = f'{type(error).__name__}: {error}'
         outcome.seconds = time.time() - start
+        outcome.cpu_seconds = time.process_time() - cpu
         return outcome
 
     def process_range(self, job: BagJob, span: TimeRange) -> Outcome:
@@ -303,7 +307,7 @@ class BagWorker:
         The range starts from ``span.memory`` when given, else from the memory rebuilt by the
         warm-up clouds (whose outputs are dropped); both memories come back in the outcome.
         """
-        start = time.time()
+        start, cpu = time.time(), time.process_time()
         outcome = Outcome(worker=self.identity)
         try:
             task = f'range-{span.number:05d}' + ('-rerun' if span.memory is not None else '')
@@ -347,6 +351,7 @@ class BagWorker:
         except Exception as error:  # a bag must not stop the fleet; the summary says why
             outcome.error = f'{type(error).__name__}: {error}'
         outcome.seconds = time.time() - start
+        outcome.cpu_seconds = time.process_time() - cpu
         return outcome
 
     @staticmethod
@@ -356,7 +361,7 @@ class BagWorker:
 
     def assemble(self, job: BagJob, ranges: int, rows: list[dict[str, Any]]) -> Outcome:
         """Write the bag from its ranges' part files, in order, with `process_bag`'s writer."""
-        start = time.time()
+        start, cpu = time.time(), time.process_time()
         outcome = Outcome(worker=self.identity)
         try:
             outcome.attempts = _claim_attempt(job.staging, 'assemble')
@@ -384,4 +389,5 @@ class BagWorker:
         except Exception as error:  # a bag must not stop the fleet; the summary says why
             outcome.error = f'{type(error).__name__}: {error}'
         outcome.seconds = time.time() - start
+        outcome.cpu_seconds = time.process_time() - cpu
         return outcome
