@@ -300,8 +300,8 @@ def run_fleet(
         else:
             todo.append(report)
     skipped = len(reports) - len(todo)
-    if skipped:
-        resumed = sum(1 for report in reports if report.status == 'resumed')
+    resumed = sum(1 for report in reports if report.status == 'resumed')
+    if resumed:
         log(f'{resumed} bag outputs complete with the same settings: skipped')
     ray: Any = None
     count = 0
