@@ -31,7 +31,9 @@ def _module_name(path: Path) -> str:
 
 
 MODULES = sorted(_module_name(path) for path in PACKAGE.rglob('*.py'))
-OUTSIDE_ROS = [name for name in MODULES if not name.startswith('mvbb_ros.ros')]
+#: The fleet (mvbb_ros/fleet) sits above ros/ and may load it; every other layer must not.
+ABOVE_ROS = ('mvbb_ros.ros', 'mvbb_ros.fleet')
+OUTSIDE_ROS = [name for name in MODULES if not name.startswith(ABOVE_ROS)]
 
 #: Loaded after importing each module in turn; the ROS packages must not appear outside ros/.
 _PROBE = """
@@ -120,7 +122,9 @@ def test_the_package_and_the_node_executable_load_no_kernels():
 
 def test_every_module_is_imported_by_the_layer_test():
     assert set(MODULES) - set(OUTSIDE_ROS) == {
-        name for name in MODULES if name.split('.')[:2] == ['mvbb_ros', 'ros']
+        name
+        for name in MODULES
+        if name.split('.')[:2] in (['mvbb_ros', 'ros'], ['mvbb_ros', 'fleet'])
     }
     assert 'mvbb_ros.ros.node' in MODULES and 'mvbb_ros.geometry.boxfit.fit' in MODULES
 
@@ -135,11 +139,13 @@ ALLOWED = {
     'evaluation': {'arrays', 'common', 'geometry', 'evaluation'},
     'ros': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'ros'},
     'cli': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'evaluation', 'cli'},
+    'fleet': {'arrays', 'common', 'kernels', 'geometry', 'pipeline', 'ros', 'fleet'},
 }
 
 #: What a layer may import inside a function besides: the command line loads the ROS layer only
-#: in the commands that need it (``mvbb bag``, ``mvbb demo``), so ``mvbb --help`` loads no ROS.
-ALLOWED_INSIDE_FUNCTIONS = {'cli': {'ros'}}
+#: in the commands that need it (``mvbb bag``, ``mvbb demo``, ``mvbb fleet``), so ``mvbb --help``
+#: loads no ROS and no Ray.
+ALLOWED_INSIDE_FUNCTIONS = {'cli': {'ros', 'fleet'}}
 
 #: The top-level modules of the package and what each may import (the package's __init__ names
 #: the public names' modules only for type checkers and imports them on first use).
@@ -342,3 +348,11 @@ def test_long_modules_are_reported():
     }
     if long:
         warnings.warn(f'modules longer than {MAX_LINES} lines: {long}', stacklevel=1)
+
+
+def test_nothing_imports_the_fleet_at_module_level():
+    """Only `mvbb fleet` loads the fleet (and Ray), inside the command."""
+    for path in sorted(PACKAGE.rglob('*.py')):
+        if path.parent.name != 'fleet':
+            imports = [name for name, top_level in _imports(path) if top_level]
+            assert not [name for name in imports if name.startswith('mvbb_ros.fleet')], path

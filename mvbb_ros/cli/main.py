@@ -1,5 +1,5 @@
 """
-The `mvbb` command: decompose a cloud file, the demo, the bag tools and the grasp evaluation.
+The `mvbb` command: decompose a cloud file, the demo, the bag tools, the fleet and the evaluation.
 
 `mvbb decompose` runs the node's per-cloud function (:func:`~mvbb_ros.pipeline.process.
 process_points`) with the node's settings, so a file gives the boxes the node publishes for the
@@ -222,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(handler=_run_demo)
 
     _add_bag_commands(commands)
+    _add_fleet_command(commands)
     _add_evaluate_command(commands)
     return parser
 
@@ -539,6 +540,155 @@ def _run_bag_process(args: argparse.Namespace) -> int:
     for line in format_totals(summary):
         print(line)
     return EXIT_OK
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {text}')
+    return value
+
+
+def _add_fleet_command(commands: argparse._SubParsersAction) -> None:
+    """Add `mvbb fleet` (many bags through `bag process` on Ray; see mvbb_ros.fleet)."""
+    fleet = commands.add_parser(
+        'fleet',
+        help='run `bag process` over many bags on Ray, with one per-cloud summary',
+        description="Run the node's pipeline over many bags in parallel on Ray: an embedded "
+        'local Ray by default, or a running cluster (--cluster ADDRESS). Each bag gives '
+        'DIR/<bag>/ with the bytes a serial `mvbb bag process` writes (DIR/<setting>/<bag>/ '
+        'in a sweep), and DIR/summary.parquet, summary.csv and summary.png hold one row per '
+        'cloud. A re-run skips bags whose outputs are complete with the same settings.',
+    )
+    fleet.add_argument(
+        'inputs',
+        nargs='+',
+        metavar='INPUT',
+        help='bags (rosbag2 folder, .bag, .db3, .mcap), globs, folders or manifest files '
+        '(one input per line)',
+    )
+    fleet.add_argument('--output', type=Path, required=True, metavar='DIR', help='output folder')
+    fleet.add_argument(
+        '--cluster',
+        default='',
+        metavar='ADDRESS',
+        help='a running Ray cluster (host:port, as `ray start --head` prints); default: an '
+        'embedded local Ray sized to this machine',
+    )
+    fleet.add_argument(
+        '--workers', type=_positive_int, help='at most N workers (default: one per CPU)'
+    )
+    fleet.add_argument(
+        '--sweep',
+        action='append',
+        default=[],
+        metavar='NAME=V1,V2,...',
+        help='run every bag under each value of a parameter (repeat for a grid); outputs go '
+        'to DIR/<setting>/<bag>/ and the summary has the setting as a column',
+    )
+    fleet.add_argument(
+        '--topic',
+        action='append',
+        default=[],
+        help='the PointCloud2 topic, needed for bags with several; repeat it for fleets '
+        'recorded with different topics (each bag uses the first it has)',
+    )
+    fleet.add_argument(
+        '--namespace',
+        default='/decomposer',
+        help='prefix of the output topics (default /decomposer)',
+    )
+    fleet.add_argument(
+        '--storage', choices=('mcap', 'sqlite3'), default='mcap', help='rosbag2 storage of outputs'
+    )
+    fleet.add_argument('--compress', action='store_true', help='zstd compression of outputs')
+    fleet.add_argument(
+        '--retries',
+        type=int,
+        default=3,
+        help='times a task runs again after its worker process died (default 3)',
+    )
+    fleet.add_argument(
+        '--clouds-per-range',
+        type=_positive_int,
+        default=300,
+        metavar='N',
+        help='cut bags of more clouds into time ranges of about N clouds, run in parallel '
+        '(default 300)',
+    )
+    fleet.add_argument('--no-picture', action='store_true', help='do not draw summary.png')
+    _add_progress_option(fleet)
+    add_settings_options(fleet, node=True)
+    fleet.set_defaults(handler=_run_fleet)
+
+
+def _run_fleet(args: argparse.Namespace) -> int:
+    # Deferred: only `mvbb fleet` loads Ray (and the ROS side of the bag tools).
+    from mvbb_ros.fleet.inputs import expand_inputs, InputError, sweep_settings
+    from mvbb_ros.fleet.run import FleetError, run_fleet
+
+    try:
+        settings = settings_from_args(args)
+        bags = expand_inputs(args.inputs)
+        grid = sweep_settings(settings, args.sweep)
+    except (OSError, ValueError, InputError) as error:
+        print(f'mvbb fleet: error: {error}', file=sys.stderr)
+        return EXIT_FAILURE
+    options = {
+        'topics': tuple(args.topic),
+        'namespace': args.namespace,
+        'storage': args.storage,
+        'compress': args.compress,
+    }
+    print(f'{len(bags)} bags x {len(grid)} settings -> {args.output}', flush=True)
+    try:
+        result = run_fleet(
+            bags,
+            grid,
+            args.output,
+            options=options,
+            cluster=args.cluster,
+            workers=args.workers,
+            retries=args.retries,
+            clouds_per_range=args.clouds_per_range,
+            progress=args.progress,
+            picture=not args.no_picture,
+            log=lambda text: print(text, flush=True),
+        )
+    except (FleetError, InputError) as error:
+        print(f'mvbb fleet: error: {error}', file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print(
+            'mvbb fleet: interrupted; complete bags kept (a re-run resumes), nothing half-written',
+            file=sys.stderr,
+        )
+        return 130
+    reports = result.reports
+    counts = {
+        status: sum(1 for r in reports if r.status == status)
+        for status in ('processed', 'resumed', 'failed')
+    }
+    retries = sum(report.retries for report in reports)
+    rate = result.clouds / result.wall_seconds if result.wall_seconds > 0 else 0.0
+    print(
+        f'{counts["processed"]} processed, {counts["resumed"]} resumed, {counts["failed"]} '
+        f'failed; {result.clouds} clouds in {result.wall_seconds:.1f} s ({rate:.2f} clouds/s, '
+        f'{result.workers} workers, {retries} retries)'
+    )
+    wall, cpu = result.busy_seconds
+    if wall > 0:
+        print(
+            f'workers: {wall:.1f} s in tasks, {cpu:.1f} s of CPU ({100 * cpu / wall:.0f} %: below '
+            '100 when the machines are shared or storage is slow)'
+        )
+    for report in result.failed:
+        label = f'{report.job.label}/' if report.job.label else ''
+        print(f'failed: {label}{report.job.name}: {report.error}', file=sys.stderr)
+    if result.summary is not None:
+        written = [result.summary.parquet, result.summary.csv, result.summary.png]
+        print('wrote ' + ', '.join(str(path) for path in written if path is not None))
+    return EXIT_FAILURE if result.failed else EXIT_OK
 
 
 def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:

@@ -221,19 +221,34 @@ class CloudBag:
         counts = {summary.name: summary.count for summary in self.topics()}
         return sum(counts.get(topic, 0) for topic in topics)
 
-    def clouds(self, topics: Sequence[str]) -> Iterator[BagCloud]:
+    def time_range(self) -> tuple[int, int]:
+        """Return the bag times of its first message and just after its last, nanoseconds."""
+        return int(self.reader.start_time), int(self.reader.end_time)
+
+    def clouds(
+        self, topics: Sequence[str], *, start_ns: int | None = None, stop_ns: int | None = None
+    ) -> Iterator[BagCloud]:
         """
         Yield the clouds on `topics` in time order, as ROS 2 CDR bytes.
 
+        With `start_ns` or `stop_ns`, only the clouds of bag times in ``[start_ns, stop_ns)``:
+        rosbags seeks there through the bag's index (MCAP chunk index, the sqlite3 timestamp
+        column, ROS 1 chunk records) rather than reading what comes before.
+
         :raises BagError: when a message cannot be read, or when fewer messages can be read
-            than the bag's index lists (a truncated bag).
+            than the bag's index lists (a truncated bag; checked when reading all of it).
         """
         reader = self.reader
         wanted = set(topics)
         connections = [c for c in reader.connections if c.topic in wanted]
-        expected = self.count(topics)
+        whole = start_ns is None and stop_ns is None
+        expected = self.count(topics) if whole else 0
         seen = 0
-        messages = reader.messages(connections=connections) if connections else iter(())
+        messages = (
+            reader.messages(connections=connections, start=start_ns, stop=stop_ns)
+            if connections
+            else iter(())
+        )
         while True:
             try:
                 item = next(messages, None)
@@ -317,9 +332,27 @@ class BagWriter:
             self.counts[topic] = 0
 
     def write(self, topic: str, timestamp_ns: int, cdr: bytes) -> None:
-        """Write one serialized message on a declared topic."""
-        self._writer.write(self._connections[topic], timestamp_ns, cdr)
+        """Write one serialized message on a declared topic, its padding bytes zeroed."""
+        connection = self._connections[topic]
+        self._writer.write(connection, timestamp_ns, canonical_cdr(cdr, connection.msgtype))
         self.counts[topic] += 1
+
+
+def canonical_cdr(cdr: bytes, msgtype: str) -> bytes:
+    """
+    Return `cdr` with its alignment padding zeroed: the same message, always the same bytes.
+
+    rclpy's serializer leaves CDR padding bytes as it found them in memory, so one message
+    serialized twice may differ in those bytes; rosbags' serializer writes zeros. Writing
+    every message through it makes a bag tool's output reproducible byte for byte (the fleet
+    compares its outputs with a serial run's that way).
+
+    :param cdr: a CDR serialization (little- or big-endian) of a `msgtype` message.
+    :param msgtype: ``package/msg/Name``.
+    """
+    store = jazzy_typestore()
+    message = store.deserialize_cdr(cdr, msgtype)
+    return bytes(store.serialize_cdr(message, msgtype, little_endian=bool(cdr[1])))
 
 
 def write_cloud_bag(

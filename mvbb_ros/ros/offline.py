@@ -12,8 +12,10 @@ leaves nothing behind. :func:`format_row` and :func:`format_totals` make the tab
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+import contextlib
 from dataclasses import dataclass, field
+import math
 import os
 from pathlib import Path
 import shutil
@@ -51,6 +53,8 @@ class ProcessedCloud:
     :ivar note: why the outputs are empty (the node's warning), or which grasp filter removed
         every grasp when there are boxes but no grasps, or which object's hidden side was not
         estimated (:attr:`~mvbb_ros.pipeline.process.PipelineResult.notes`), or ''.
+    :ivar objects: objects found in the cloud.
+    :ivar top_score: the top grasp's score, NaN when there is none.
     """
 
     index: int
@@ -64,6 +68,8 @@ class ProcessedCloud:
     grasps: int
     milliseconds: float
     note: str = ''
+    objects: int = 0
+    top_score: float = math.nan
 
 
 @dataclass
@@ -174,6 +180,115 @@ def _stamp_ns(header: Any) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
+#: One message to write: ``(topic, bag timestamp ns, CDR bytes)``.
+OutputMessage = tuple[str, int, bytes]
+
+
+def output_prefix(namespace: str) -> str:
+    """
+    Return the prefix of the output topics for `namespace`.
+
+    :raises BagError: when `namespace` does not start with ``/`` or ends with one.
+    """
+    if not namespace.startswith('/') or (namespace.endswith('/') and namespace != '/'):
+        raise BagError(f'the output namespace must start and not end with /, got {namespace!r}')
+    return namespace.rstrip('/')
+
+
+@contextlib.contextmanager
+def open_output(
+    target: Path,
+    cloud_topic: str,
+    settings: PipelineSettings,
+    *,
+    with_input: bool = False,
+    namespace: str = DEFAULT_NAMESPACE,
+    storage: str = 'mcap',
+    compress: bool = False,
+    force: bool = False,
+) -> Iterator[BagWriter]:
+    """
+    Open the output bag of :func:`process_bag` with its topics declared; write it atomically.
+
+    The block writes the messages (:func:`process_clouds` gives them); the bag appears at
+    `target` only when the block ends without an error, replacing an old one when `force`.
+
+    :param target: the rosbag2 directory to write.
+    :param cloud_topic: the input topic (declared first when `with_input`).
+    :param settings: the settings (``publish_tree`` decides the tree topic).
+    """
+    prefix = output_prefix(namespace)
+    with atomic_path(target) as tmp, BagWriter(tmp, storage=storage, compress=compress) as out:
+        if with_input:
+            out.add_topic(cloud_topic, CLOUD_TYPE)
+        for suffix, message_class in OUTPUT_TYPES.items():
+            if suffix != 'tree' or settings.node.publish_tree:
+                out.add_topic(f'{prefix}/{suffix}', ros_type_name(message_class))
+        yield out
+        if force and target.exists():
+            _remove(target)
+
+
+def process_clouds(
+    bag: CloudBag,
+    cloud_topic: str,
+    settings: PipelineSettings,
+    memory: GraspMemory,
+    *,
+    with_input: bool = False,
+    namespace: str = DEFAULT_NAMESPACE,
+    start_ns: int | None = None,
+    stop_ns: int | None = None,
+    first_index: int = 0,
+) -> Iterator[tuple[ProcessedCloud, list[OutputMessage], Any, PipelineResult | None]]:
+    """
+    Run the node's pipeline on the clouds of an open bag; yield each one's row and messages.
+
+    This is the one implementation of `mvbb bag process`: :func:`process_bag` writes what it
+    yields, and the fleet (:mod:`mvbb_ros.fleet`) runs it on time ranges of long bags.
+
+    :param bag: the open bag.
+    :param cloud_topic: the cloud topic.
+    :param settings: the settings.
+    :param memory: the previous cloud's top grasp (the node's hysteresis), updated cloud after
+        cloud.
+    :param start_ns: read clouds at or after this bag time (nanoseconds); None: from the start.
+    :param stop_ns: read clouds before this bag time; None: to the end.
+    :param first_index: the row index of the first cloud.
+    :return: ``(row, messages, cloud, result)`` per cloud: its table row, the messages to write
+        in order (the input cloud first when `with_input`), the rclpy cloud and the pipeline
+        result (None when processing raised).
+    """
+    prefix = output_prefix(namespace)
+    clouds = bag.clouds([cloud_topic], start_ns=start_ns, stop_ns=stop_ns)
+    for index, item in enumerate(clouds, start=first_index):
+        cloud = item.message()
+        result, note = run_pipeline(cloud, settings, memory)
+        messages: list[OutputMessage] = []
+        if with_input:
+            messages.append((cloud_topic, item.timestamp_ns, item.cdr))
+        outputs = output_messages(result, cloud.header, settings)
+        for suffix, message in outputs.items():
+            messages.append((f'{prefix}/{suffix}', item.timestamp_ns, serialize_message(message)))
+        grasps = [] if result is None else result.grasps
+        row = ProcessedCloud(
+            index=index,
+            topic=item.topic,
+            timestamp_ns=item.timestamp_ns,
+            stamp_ns=_stamp_ns(cloud.header),
+            frame_id=str(cloud.header.frame_id),
+            points=0 if result is None else int(result.counts.finite),
+            filtered=0 if result is None else int(result.counts.inliers),
+            boxes=0 if result is None else len(result.leaves),
+            grasps=len(outputs['grasps'].poses),
+            milliseconds=0.0 if result is None else float(result.total_ms),
+            note=note,
+            objects=0 if result is None else len(result.objects),
+            top_score=float(grasps[0].score) if grasps else math.nan,
+        )
+        yield row, messages, cloud, result
+
+
 def process_bag(
     input_path: str | os.PathLike[str],
     output_path: str | os.PathLike[str],
@@ -214,50 +329,34 @@ def process_bag(
     """
     settings = settings if settings is not None else PipelineSettings()
     source, target = Path(input_path), Path(output_path)
-    if not namespace.startswith('/') or (namespace.endswith('/') and namespace != '/'):
-        raise BagError(f'the output namespace must start and not end with /, got {namespace!r}')
-    prefix = namespace.rstrip('/')
+    output_prefix(namespace)
     start = time.perf_counter()
     with CloudBag(source) as bag:
         cloud_topic = bag.select_topics(topic, single=True)[0]
         _check_output(source, target, force)
         summary = ProcessSummary(input_path=source, output_path=target, input_topic=cloud_topic)
-        with atomic_path(target) as tmp, BagWriter(tmp, storage=storage, compress=compress) as out:
-            if with_input:
-                out.add_topic(cloud_topic, CLOUD_TYPE)
-            for suffix, message_class in OUTPUT_TYPES.items():
-                if suffix != 'tree' or settings.node.publish_tree:
-                    out.add_topic(f'{prefix}/{suffix}', ros_type_name(message_class))
+        with open_output(
+            target,
+            cloud_topic,
+            settings,
+            with_input=with_input,
+            namespace=namespace,
+            storage=storage,
+            compress=compress,
+            force=force,
+        ) as out:
             if on_start is not None:
                 on_start(bag.count([cloud_topic]))
             memory = GraspMemory()  # the node's hysteresis, cloud after cloud
-            for index, item in enumerate(bag.clouds([cloud_topic])):
-                cloud = item.message()
-                result, note = run_pipeline(cloud, settings, memory)
-                if with_input:
-                    out.write(cloud_topic, item.timestamp_ns, item.cdr)
-                outputs = output_messages(result, cloud.header, settings)
-                for suffix, message in outputs.items():
-                    out.write(f'{prefix}/{suffix}', item.timestamp_ns, serialize_message(message))
-                row = ProcessedCloud(
-                    index=index,
-                    topic=item.topic,
-                    timestamp_ns=item.timestamp_ns,
-                    stamp_ns=_stamp_ns(cloud.header),
-                    frame_id=str(cloud.header.frame_id),
-                    points=0 if result is None else int(result.counts.finite),
-                    filtered=0 if result is None else int(result.counts.inliers),
-                    boxes=0 if result is None else len(result.leaves),
-                    grasps=len(outputs['grasps'].poses),
-                    milliseconds=0.0 if result is None else float(result.total_ms),
-                    note=note,
-                )
+            for row, messages, cloud, result in process_clouds(
+                bag, cloud_topic, settings, memory, with_input=with_input, namespace=namespace
+            ):
+                for message in messages:
+                    out.write(*message)
                 summary.rows.append(row)
                 if on_cloud is not None:
                     on_cloud(row, cloud, result)
             summary.topics = dict(out.counts)
-            if force and target.exists():
-                _remove(target)
     summary.wall_seconds = time.perf_counter() - start
     return summary
 
