@@ -24,9 +24,10 @@ contender gets the same view and proposes grasp poses, best first:
 * ``cgn``: Contact-GraspNet in its own virtual environment, fed the z-up world-frame scene and the
   object's points (skipped with a message when its environment is missing).
 
-Each of a contender's first five grasps is tried in the physics trial
-(:func:`mvbb_ros.evaluation.physics.trial.try_grasp`: approach, close, lift, shake). Top-1: the
-first grasp holds; top-5: one of the first five does; a view without grasps fails both. The
+A contender's first five grasps are tried in the physics trial, best first, until one holds
+(:func:`mvbb_ros.evaluation.physics.trial.try_grasp`: the hand fully open, approach, close, lift,
+shake). Top-1: the first grasp holds; top-5: one of the first five does; a view without grasps
+fails both. The
 table gives both with 95 % Wilson intervals per set and contender, and the contender's time per
 view (proposing only, not the trial). The same grasps are judged by the project's analytic pad
 judge (:func:`mvbb_ros.evaluation.grasp_judge.judge_grasps`, pads of the hand's opening, the table
@@ -119,8 +120,8 @@ def primitive_contender(view: Any, opening: float) -> list[Any]:
 class CgnContender:
     """Contact-GraspNet, started once for the whole run; ``unavailable`` says why it cannot."""
 
-    def __init__(self) -> None:
-        """Start the network, or record why it cannot start."""
+    def __init__(self, python: Path | None = None, threads: int | None = 1) -> None:
+        """Start the network (`python`: its environment's Python), or record why it cannot."""
         self.unavailable: str | None = None
         self._stack = contextlib.ExitStack()
         self._net: Any = None
@@ -133,7 +134,7 @@ class CgnContender:
             self.unavailable = f'the Contact-GraspNet wrapper is not in this branch ({error})'
             return
         try:
-            self._net = self._stack.enter_context(ContactGraspNet())
+            self._net = self._stack.enter_context(ContactGraspNet(python, threads=threads))
         except ContactGraspNetUnavailable as error:
             self.unavailable = str(error)
 
@@ -221,16 +222,26 @@ def try_view(
     opening = hand_opening(hand)
     for name, propose in proposers.items():
         start = time.perf_counter()
-        poses = [np.asarray(p, dtype=np.float64) for p in propose(view, opening)][:TOP_K]
+        proposed = [np.asarray(p, dtype=np.float64) for p in propose(view, opening)]
+        poses = proposed[:TOP_K]
         seconds = time.perf_counter() - start
-        stages, successes = [], []
         start = time.perf_counter()
+        # Best first, each from the same start with the hand fully open, until one holds: the
+        # first success decides top-1 and top-5, the grasps after it cannot change either.
+        stages, successes = [], []
         for pose in poses:
             outcome = trial.try_grasp(
-                view.placed.obj, view.placed.pose, pose, hand, trial_settings
+                view.placed.obj,
+                view.placed.pose,
+                pose,
+                hand,
+                trial.DEFAULT_SETTINGS if trial_settings is None else trial_settings,
             )
             stages.append(str(outcome.stage))
             successes.append(bool(outcome.success))
+            if outcome.success:
+                break
+        poses = poses[: len(stages)]
         trial_seconds = time.perf_counter() - start
         judged: list[str | None] = [None] * len(poses)
         if poses and target is not None:
@@ -258,7 +269,8 @@ def try_view(
             )
         row = {
             **base,
-            'grasps': len(poses),
+            'proposed': len(proposed),
+            'tried': len(poses),
             'top1': bool(successes[:1] and successes[0]),
             'top5': any(successes),
             'first_success': successes.index(True) if any(successes) else None,
@@ -335,7 +347,7 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         'top1_ci': list(wilson(top1, count)),
         'top5': top5 / count if count else None,
         'top5_ci': list(wilson(top5, count)),
-        'no_grasp': sum(r['grasps'] == 0 for r in rows),
+        'no_grasp': sum(r['proposed'] == 0 for r in rows),
         'seconds_per_view': sum(r['seconds'] for r in rows) / count if count else None,
         'trial_seconds_per_view': sum(r['trial_seconds'] for r in rows) / count if count else None,
     }
@@ -503,7 +515,7 @@ def gripper_lines(pose: Any, opening: float, finger: float = 0.05) -> list[Any]:
     return [transform_points(pose, np.array(line)) for line in local]
 
 
-def draw_montage(failures: Sequence[Mapping[str, Any]], opening: float, path: Path) -> int:
+def draw_montage(failures: Sequence[Mapping[str, Any]], hand: Any, path: Path) -> int:
     """
     Draw the node's failed views in a grid; return how many panels.
 
@@ -536,12 +548,12 @@ def draw_montage(failures: Sequence[Mapping[str, Any]], opening: float, path: Pa
             return fx * p[:, 0] / p[:, 2] + cx, fy * p[:, 1] / p[:, 2] + cy
 
         u, v = pixels(view.scene_points)
-        ax.scatter(u, v, s=0.3, c='0.8', linewidths=0)
+        ax.scatter(u, v, s=1.0, c='0.85', linewidths=0)
         u, v = pixels(view.points)
-        ax.scatter(u, v, s=0.6, c=view.points[:, 2], cmap='viridis', linewidths=0)
+        ax.scatter(u, v, s=3.0, c=view.points[:, 2], cmap='viridis', linewidths=0)
         bounds = [u.min(), u.max(), v.min(), v.max()]
         if failure['pose'] is not None:
-            for line in gripper_lines(failure['pose'], opening):
+            for line in gripper_lines(failure['pose'], hand.max_opening, hand.finger_depth):
                 gu, gv = pixels(view.to_camera(line))
                 ax.plot(gu, gv, color='red', linewidth=1.5)
                 bounds = [
@@ -550,14 +562,14 @@ def draw_montage(failures: Sequence[Mapping[str, Any]], opening: float, path: Pa
                     min(bounds[2], gv.min()),
                     max(bounds[3], gv.max()),
                 ]
-        pad = 0.1 * max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1.0)
+        pad = max(0.15 * max(bounds[1] - bounds[0], bounds[3] - bounds[2]), 15.0)
         ax.set_xlim(bounds[0] - pad, bounds[1] + pad)
         ax.set_ylim(bounds[3] + pad, bounds[2] - pad)
         ax.set_aspect('equal')
         ax.set_title(f'{view.name}\n{failure["stage"]}', fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format='png')
+        fig.savefig(tmp, dpi=100, format='png')
     plt.close(fig)
     return len(shown)
 
@@ -623,6 +635,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="write a montage of the node's failures here",
     )
     parser.add_argument(
+        '--cgn-python',
+        type=Path,
+        default=None,
+        metavar='PYTHON',
+        help="Contact-GraspNet's environment (default: .venv-cgn/bin/python of this checkout)",
+    )
+    parser.add_argument(
         '--data', type=Path, default=DEFAULT_DATA, help='the shared data folder (for --set shared)'
     )
     args = parser.parse_args(argv)
@@ -665,7 +684,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cgn: CgnContender | None = None
     for name in args.contenders:
         if name == 'cgn':
-            cgn = CgnContender()
+            cgn = CgnContender(args.cgn_python)
             if cgn.unavailable is not None:
                 skipped['cgn'] = cgn.unavailable
                 print(f'contender cgn skipped: {cgn.unavailable}')
@@ -723,7 +742,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'wrote {args.json}')
     if args.pictures is not None and 'node' in proposers:
         path = args.pictures / f'node_failures_{args.hand}.png'
-        panels = draw_montage(results.failures, hand_opening(hand), path)
+        panels = draw_montage(results.failures, hand, path)
         print(f'wrote {path} ({panels} failures)' if panels else 'no node failures to draw')
     return 0
 
