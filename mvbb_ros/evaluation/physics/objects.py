@@ -136,35 +136,36 @@ def mesh_volume(vertices: ArrayLike, triangles: ArrayLike) -> float:
     return float(np.einsum('ij,ij->i', v[t[:, 0]], np.cross(v[t[:, 1]], v[t[:, 2]])).sum() / 6.0)
 
 
-def union_volume(parts: Parts, cells: int = 40) -> float:
+def union_volume(parts: Parts, points: int = 100_000) -> float:
     """
     Volume of the union of convex parts (m^3), counted on a grid.
 
-    The parts' box is cut into cubes, `cells` along its longest side; a cube counts when its
-    centre is inside any part. Deterministic; the error is of the order of the surface cubes.
+    The parts' box is cut into about `points` cubes; a cube counts when its centre is inside any
+    part. Deterministic; the error is of the order of the cubes on the surface (a few per cent at
+    the default).
     """
     low = np.min([vertices.min(axis=0) for vertices, _ in parts], axis=0)
     high = np.max([vertices.max(axis=0) for vertices, _ in parts], axis=0)
-    step = float((high - low).max()) / cells
-    if not step > 0.0:
-        return 0.0
+    size = np.maximum(high - low, 1e-9)
+    step = float(np.prod(size) / points) ** (1.0 / 3.0)
     axes = [
-        low[i] + step * (np.arange(int(np.ceil((high[i] - low[i]) / step))) + 0.5)
-        for i in range(3)
+        low[i] + step * (np.arange(max(1, int(np.ceil(size[i] / step)))) + 0.5) for i in range(3)
     ]
     grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 3)
     inside = np.zeros(len(grid), dtype=bool)
+    total = 0.0  # the sum of the parts' volumes bounds their union from above
     for vertices, _ in parts:
         try:
-            equations = ConvexHull(vertices).equations
+            hull = ConvexHull(vertices)
         except (QhullError, ValueError):
             continue
+        equations, total = hull.equations, total + float(hull.volume)
         near = np.all((grid >= vertices.min(axis=0)) & (grid <= vertices.max(axis=0)), axis=1)
         candidates = np.flatnonzero(near & ~inside)
-        if len(candidates):
-            offsets = grid[candidates] @ equations[:, :3].T + equations[:, 3]
-            inside[candidates[np.all(offsets <= 0.0, axis=1)]] = True
-    return float(inside.sum()) * step**3
+        for chunk in np.array_split(candidates, max(1, len(candidates) // 20_000)):
+            offsets = grid[chunk] @ equations[:, :3].T + equations[:, 3]
+            inside[chunk[np.all(offsets <= 0.0, axis=1)]] = True
+    return min(float(inside.sum()) * step**3, total)
 
 
 def default_cache_dir() -> Path:

@@ -51,6 +51,9 @@ MIN_GAP = 0.002
 #: A held object is one both pads touched within this time (seconds): a contact can come and go
 #: for a step while the grip is sound.
 GRIP_MEMORY = 0.1
+#: Roles of the geoms, as bits, to tell what a contact joins.
+_PALM, _LEFT, _RIGHT, _OBJECT, _TABLE = 1, 2, 4, 8, 16
+_HAND = _PALM | _LEFT | _RIGHT
 
 
 @dataclass(frozen=True)
@@ -239,30 +242,34 @@ class _Trial:
         self.obj, self.hand, self.settings = obj, hand, settings
         self.scene = build_scene(obj, hand, settings.options)
         scene = self.scene
-        self.hand_geoms = np.array(scene.hand_geoms)
-        self.object_geoms = np.flatnonzero(scene.model.geom_bodyid == scene.object_body)
+        self.roles = np.zeros(scene.model.ngeom, dtype=np.int64)
+        self.roles[scene.model.geom_bodyid == scene.object_body] = _OBJECT
+        self.roles[scene.table_geom] = _TABLE
+        self.roles[list(scene.hand_geoms)] = _PALM
+        self.roles[scene.left_geom] = _LEFT
+        self.roles[scene.right_geom] = _RIGHT
         self.step = 0
         self.gripped_step = -(10**9)
         self.watch_grip = False
 
     # -- what touches what ------------------------------------------------------------------
-    def _pairs(self) -> np.ndarray:
-        return np.asarray(self.scene.data.contact.geom[: self.scene.data.ncon]).reshape(-1, 2)
-
-    def _touching(self, first: np.ndarray, second: np.ndarray) -> bool:
-        pairs = self._pairs()
-        a, b = np.isin(pairs[:, 0], first), np.isin(pairs[:, 1], second)
-        c, d = np.isin(pairs[:, 0], second), np.isin(pairs[:, 1], first)
-        return bool(np.any((a & b) | (c & d)))
+    def _touch_mask(self) -> np.ndarray:
+        """Return, per contact, the bitwise or of its two geoms' roles (:data:`_ROLES`)."""
+        data = self.scene.data
+        roles = self.roles[np.asarray(data.contact.geom[: data.ncon])]
+        return np.bitwise_or(roles[:, 0], roles[:, 1]) if len(roles) else roles[:, 0]
 
     def _hand_on_table(self) -> bool:
-        return self._touching(self.hand_geoms, np.array([self.scene.table_geom]))
+        mask = self._touch_mask()
+        return bool(np.any((mask & _TABLE) & ((mask & _HAND) != 0)))
+
+    def _hand_on_object(self) -> bool:
+        mask = self._touch_mask()
+        return bool(np.any((mask & _OBJECT) & ((mask & _HAND) != 0)))
 
     def _pads_on_object(self) -> bool:
-        scene = self.scene
-        return self._touching(np.array([scene.left_geom]), self.object_geoms) and self._touching(
-            np.array([scene.right_geom]), self.object_geoms
-        )
+        mask = self._touch_mask()
+        return bool(np.any(mask == _LEFT | _OBJECT) and np.any(mask == _RIGHT | _OBJECT))
 
     # -- moving the hand ----------------------------------------------------------------------
     def _drive(self, position: FloatArray, quat: FloatArray) -> None:
@@ -271,7 +278,7 @@ class _Trial:
         data.mocap_quat[mocap] = quat
         mujoco.mj_step(self.scene.model, data)
         self.step += 1
-        if self.watch_grip and self._pads_on_object():
+        if self.watch_grip and self.step % 5 == 0 and self._pads_on_object():
             self.gripped_step = self.step
 
     def _hold(self, seconds: float, position: FloatArray, quat: FloatArray) -> None:
@@ -334,7 +341,7 @@ class _Trial:
 
         if self._hand_on_table():
             return verdict('collision', 'the hand touches the table at the pre-grasp pose')
-        if self._touching(self.hand_geoms, self.object_geoms):
+        if self._hand_on_object():
             return verdict('collision', 'the hand touches the object at the pre-grasp pose')
         steps = self._steps(settings.standoff / settings.approach_speed)
         for step in range(1, steps + 1):
