@@ -520,8 +520,9 @@ def draw_montage(failures: Sequence[Mapping[str, Any]], hand: Any, path: Path) -
     Draw the node's failed views in a grid; return how many panels.
 
     Each panel is the view as its camera saw it (pixels): the table grey, the object coloured by
-    depth, the node's top grasp as a hand (red; none when it proposed nothing), the object and
-    the trial's stage in the title.
+    depth, the node's top grasp as a hand (red: the open fingers, the palm and the wrist; none
+    when it proposed nothing); the title names the view, the object's world box (x, y, z, cm)
+    and the trial's stage.
     """
     import matplotlib
 
@@ -566,7 +567,8 @@ def draw_montage(failures: Sequence[Mapping[str, Any]], hand: Any, path: Path) -
         ax.set_xlim(bounds[0] - pad, bounds[1] + pad)
         ax.set_ylim(bounds[3] + pad, bounds[2] - pad)
         ax.set_aspect('equal')
-        ax.set_title(f'{view.name}\n{failure["stage"]}', fontsize=8)
+        size = ' x '.join(f'{100 * v:.0f}' for v in view.placed.high - view.placed.low)
+        ax.set_title(f'{view.name} ({size} cm)\n{failure["stage"]}', fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format='png')
