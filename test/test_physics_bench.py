@@ -167,6 +167,9 @@ def test_the_primitive_closes_across_the_narrowest_side_from_above(placed):
 def test_wilson_interval_on_known_values(successes, trials, low, high):
     interval = wilson_interval(successes, trials)
     np.testing.assert_allclose(interval, (low, high), atol=5e-5)
+    assert (interval[0] == 0.0) == (successes == 0) and (interval[1] == 1.0) == (
+        successes == trials
+    )
 
 
 @settings(max_examples=100, deadline=None)

@@ -307,4 +307,7 @@ def wilson_interval(
     half = (
         z * math.sqrt(p * (1.0 - p) / trials + z2 / (4.0 * trials * trials)) / (1.0 + z2 / trials)
     )
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # No successes (all successes) put the bound exactly at 0 (1), not a rounding error from it.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return low, high
