@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import mujoco
 from mvbb_ros.evaluation.physics import (
     convex_parts,
     FRANKA,
@@ -28,12 +29,11 @@ from mvbb_ros.evaluation.physics.model import build_scene
 from mvbb_ros.evaluation.physics.objects import (
     hull_of,
     mesh_volume,
-    random_scale,
     RANDOM_LENGTH_RANGE,
+    random_scale,
     union_volume,
 )
 from mvbb_ros.evaluation.physics.trial import DEFAULT_SETTINGS
-import mujoco
 import numpy as np
 import pytest
 
@@ -47,14 +47,14 @@ def _box(size: tuple[float, float, float], name: str = 'box') -> PhysicsObject:
 
 
 def _standing(obj: PhysicsObject) -> np.ndarray:
-    """The object's pose with its own axes, resting on the table (bottom at z = 0)."""
+    """Return the object's pose with its own axes, resting on the table (bottom at z = 0)."""
     pose = np.eye(4)
     pose[2, 3] = -float(obj.vertices[:, 2].min())
     return pose
 
 
 def _grasp(approach, closing, origin) -> np.ndarray:
-    """A grasp pose from its approach (z) and closing (y) directions and its origin."""
+    """Return a grasp pose from its approach (z) and closing (y) directions and its origin."""
     z = np.asarray(approach, dtype=float)
     y = np.asarray(closing, dtype=float)
     pose = np.eye(4)
@@ -157,7 +157,7 @@ def test_settle_leaves_the_object_at_rest_on_the_table_and_repeats_for_a_seed():
 
 
 def _l_block(height: float = 0.03) -> tuple[np.ndarray, np.ndarray]:
-    """A closed, outward L-shaped prism: 8 x 2 cm and 2 x 4 cm legs, `height` tall."""
+    """Return a closed, outward L-shaped prism: 8 x 2 cm and 2 x 4 cm legs, `height` tall."""
     outline = np.array([(0, 0), (8, 0), (8, 2), (2, 2), (2, 6), (0, 6)], dtype=float) * 0.01
     count = len(outline)
     vertices = np.vstack([np.c_[outline, np.zeros(count)], np.c_[outline, np.full(count, height)]])
