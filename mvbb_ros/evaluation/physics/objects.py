@@ -27,7 +27,7 @@ from typing import Literal
 
 from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.common.atomic import atomic_path
-from mvbb_ros.evaluation.mesh import is_closed, load_mesh
+from mvbb_ros.evaluation.mesh import load_mesh
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import ConvexHull, QhullError
@@ -50,6 +50,10 @@ DEVELOPMENT_END = 500
 #: CoACD's settings (its defaults: concavity threshold 0.05, seed 0), part of the cache key.
 COACD_THRESHOLD = 0.05
 COACD_SEED = 0
+
+#: A mesh is convex when no vertex or triangle centre lies deeper inside its hull than this
+#: share of its longest side.
+CONVEX_TOLERANCE = 0.005
 
 #: The extensions :func:`mesh_folder_objects` reads.
 MESH_SUFFIXES = ('.ply', '.obj', '.stl')
@@ -186,11 +190,23 @@ def _cache_key(vertices: FloatArray, triangles: IndexArray) -> str:
 
 
 def _is_convex(vertices: FloatArray, triangles: IndexArray) -> bool:
-    """Tell whether the mesh is closed and its volume its hull's (to 0.2 %): its own hull."""
-    if not is_closed(triangles):
+    """
+    Tell whether the mesh is its own hull: every vertex and triangle centre on the hull's surface.
+
+    On the surface means within :data:`CONVEX_TOLERANCE` of the longest side; open meshes (a
+    surface without a bottom) count too, their hull being the solid they bound.
+    """
+    try:
+        hull = ConvexHull(vertices)
+    except (QhullError, ValueError):
         return False
-    hull = _hull_volume(vertices)
-    return hull > 0.0 and abs(mesh_volume(vertices, triangles) - hull) <= 0.002 * hull
+    tolerance = CONVEX_TOLERANCE * float(np.ptp(vertices, axis=0).max())
+    centres = vertices[triangles].mean(axis=1)
+    for points in (vertices, centres):
+        depth = -(points @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)
+        if np.any(depth > tolerance):
+            return False
+    return True
 
 
 def convex_parts(
@@ -201,7 +217,7 @@ def convex_parts(
     """
     Return convex pieces whose union is the mesh, for the engine's collisions.
 
-    A convex mesh (closed, its volume its hull's) is its own hull; anything else is cut by CoACD
+    A convex mesh (every vertex on its hull) is its own hull; anything else is cut by CoACD
     (Wei et al. 2022; concavity threshold :data:`COACD_THRESHOLD`, seed :data:`COACD_SEED`). The
     result is kept in `cache_dir` (default :func:`default_cache_dir`) under the SHA-256 of the
     vertices, triangles and settings, written atomically, so the next call reads it back.
@@ -417,7 +433,7 @@ def mesh_folder_objects(
         raise ValueError(f'no PLY/OBJ/STL mesh in {folder}')
     objects = []
     for file in files:
-        mesh = load_mesh(file)
+        mesh = load_mesh(file).remove_duplicated_vertices()  # STL stores a corner per triangle
         vertices = np.asarray(mesh.vertices, dtype=np.float64) * _UNITS[units]
         objects.append(
             _object_from_mesh(file.stem, vertices, np.asarray(mesh.triangles), density, cache_dir)

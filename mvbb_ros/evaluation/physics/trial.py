@@ -261,11 +261,11 @@ class _Trial:
 
     def _hand_on_table(self) -> bool:
         mask = self._touch_mask()
-        return bool(np.any((mask & _TABLE) & ((mask & _HAND) != 0)))
+        return bool(np.any(((mask & _TABLE) != 0) & ((mask & _HAND) != 0)))
 
     def _hand_on_object(self) -> bool:
         mask = self._touch_mask()
-        return bool(np.any((mask & _OBJECT) & ((mask & _HAND) != 0)))
+        return bool(np.any(((mask & _OBJECT) != 0) & ((mask & _HAND) != 0)))
 
     def _pads_on_object(self) -> bool:
         mask = self._touch_mask()
