@@ -221,15 +221,16 @@ class ContactGraspNet:
         :return: poses in our convention (module docstring), widths, scores.
         """
         scene = _points('scene_points', scene_points)
-        arrays = {'scene': scene}
-        if object_points is not None:
-            arrays['object'] = _points('object_points', object_points)
+        target = None if object_points is None else _points('object_points', object_points)
         self.start()
         assert self._workdir is not None and self._process is not None
         self._count += 1
         request_path = self._workdir / f'view{self._count}.npz'
         answer_path = self._workdir / f'grasps{self._count}.npz'
-        np.savez(request_path, **arrays)
+        if target is None:
+            np.savez(request_path, scene=scene)
+        else:
+            np.savez(request_path, scene=scene, object=target)
         request = {
             'points': str(request_path),
             'out': str(answer_path),
@@ -261,10 +262,11 @@ class ContactGraspNet:
         """Read the server's next JSON line, failing clearly if it dies or says nothing."""
         assert self._process is not None and self._process.stdout is not None
         ready, _, _ = select.select([self._process.stdout], [], [], timeout_s)
-        line = self._process.stdout.readline() if ready else ''
-        if not line:
-            why = 'exited' if self._process.poll() is not None else f'was silent {timeout_s:.0f} s'
-            self._fail(f'the Contact-GraspNet server {why} at {stage}')
+        if not ready:
+            self._fail(f'the Contact-GraspNet server was silent {timeout_s:.0f} s at {stage}')
+        line = self._process.stdout.readline()
+        if not line:  # end of its output: it has exited or is exiting
+            self._fail(f'the Contact-GraspNet server exited at {stage}')
         try:
             parsed: dict[str, Any] = json.loads(line)
         except json.JSONDecodeError:
