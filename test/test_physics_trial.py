@@ -33,7 +33,7 @@ from mvbb_ros.evaluation.physics.objects import (
     random_scale,
     union_volume,
 )
-from mvbb_ros.evaluation.physics.trial import DEFAULT_SETTINGS, place_object
+from mvbb_ros.evaluation.physics.trial import DEFAULT_SETTINGS, place_object, TrialSettings
 import numpy as np
 import pytest
 
@@ -116,7 +116,7 @@ def test_an_object_wider_than_the_opening_fails_and_lifts_with_the_wide_hand():
 
 def test_a_hand_inside_the_object_at_the_pre_grasp_pose_collides():
     deep = _grasp([0, 0, -1], [1, 0, 0], [0.0, 0.0, 0.0])
-    shallow_standoff = DEFAULT_SETTINGS.__class__(standoff=0.02)
+    shallow_standoff = TrialSettings(standoff=0.02)
     result = try_grasp(BOX, _standing(BOX), deep, FRANKA, shallow_standoff)
     assert result.stage == 'collision' and 'pre-grasp' in result.detail, result
 
