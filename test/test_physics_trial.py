@@ -250,3 +250,5 @@ def test_hands_are_checked():
         Hand(max_opening=0.3)  # wider than the palm
     with pytest.raises(ValueError):
         try_grasp(BOX, np.eye(3), TOP_DOWN)
+    with pytest.raises(ValueError, match='units'):
+        settle(_box((1.0, 0.06, 0.06), 'metres given as millimetres'), seed=0)

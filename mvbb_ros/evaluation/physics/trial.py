@@ -38,6 +38,7 @@ from mvbb_ros.evaluation.physics.model import (
     CLOSE_OVERSHOOT,
     PhysicsOptions,
     Scene,
+    TABLE_HALF_SIZE,
 )
 from mvbb_ros.evaluation.physics.objects import PhysicsObject
 import numpy as np
@@ -222,6 +223,11 @@ def settle(
     times that in rad/s) or `settle_seconds` have passed. The pose is then moved in x and y so
     that the object's box is centred on x = y = 0 (the table is the same everywhere).
     """
+    if float(obj.extent.max()) > TABLE_HALF_SIZE:
+        raise ValueError(
+            f'{obj.name} is {obj.extent.max():.2f} m long, more than the table allows '
+            f'({TABLE_HALF_SIZE} m): are its units right?'
+        )
     scene = build_scene(obj, None, settings.options)
     rng = np.random.default_rng([seed])
     quat = rng.normal(size=4)
