@@ -273,6 +273,9 @@ class _Trial:
         self.step = 0
         self.gripped_step = -(10**9)
         self.watch_grip = False
+        # Views into the engine's arrays, made once: the bindings build a new view per access.
+        self.mocap_pos = scene.data.mocap_pos[scene.mocap]
+        self.mocap_quat = scene.data.mocap_quat[scene.mocap]
 
     # -- what touches what ------------------------------------------------------------------
     def _touch_mask(self) -> np.ndarray:
@@ -295,10 +298,9 @@ class _Trial:
 
     # -- moving the hand ----------------------------------------------------------------------
     def _drive(self, position: FloatArray, quat: FloatArray) -> None:
-        data, mocap = self.scene.data, self.scene.mocap
-        data.mocap_pos[mocap] = position
-        data.mocap_quat[mocap] = quat
-        mujoco.mj_step(self.scene.model, data)
+        self.mocap_pos[:] = position
+        self.mocap_quat[:] = quat
+        mujoco.mj_step(self.scene.model, self.scene.data)
         self.step += 1
         if self.watch_grip and self.step % 5 == 0 and self._pads_on_object():
             self.gripped_step = self.step
