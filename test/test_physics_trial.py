@@ -33,7 +33,7 @@ from mvbb_ros.evaluation.physics.objects import (
     random_scale,
     union_volume,
 )
-from mvbb_ros.evaluation.physics.trial import DEFAULT_SETTINGS
+from mvbb_ros.evaluation.physics.trial import DEFAULT_SETTINGS, place_object, TrialSettings
 import numpy as np
 import pytest
 
@@ -116,7 +116,7 @@ def test_an_object_wider_than_the_opening_fails_and_lifts_with_the_wide_hand():
 
 def test_a_hand_inside_the_object_at_the_pre_grasp_pose_collides():
     deep = _grasp([0, 0, -1], [1, 0, 0], [0.0, 0.0, 0.0])
-    shallow_standoff = DEFAULT_SETTINGS.__class__(standoff=0.02)
+    shallow_standoff = TrialSettings(standoff=0.02)
     result = try_grasp(BOX, _standing(BOX), deep, FRANKA, shallow_standoff)
     assert result.stage == 'collision' and 'pre-grasp' in result.detail, result
 
@@ -146,14 +146,12 @@ def test_settle_leaves_the_object_at_rest_on_the_table_and_repeats_for_a_seed():
     assert np.allclose(centre[:2], 0.0, atol=1e-9)
     # Let go there again: it stays put and still.
     scene = build_scene(obj, None, DEFAULT_SETTINGS.options)
-    scene.data.qpos[scene.object_qpos : scene.object_qpos + 3] = pose[:3, 3]
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, pose[:3, :3].ravel())
-    scene.data.qpos[scene.object_qpos + 3 : scene.object_qpos + 7] = quat
+    place_object(scene, pose)
     for _ in range(250):
         mujoco.mj_step(scene.model, scene.data)
     assert np.linalg.norm(scene.data.xpos[scene.object_body] - pose[:3, 3]) < 0.002
-    assert np.linalg.norm(scene.data.qvel[scene.object_dof : scene.object_dof + 3]) < 0.01
+    speed = scene.data.cvel[scene.object_body][3:]
+    assert np.linalg.norm(speed) < 0.01
 
 
 def _l_block(height: float = 0.03) -> tuple[np.ndarray, np.ndarray]:
@@ -252,3 +250,5 @@ def test_hands_are_checked():
         Hand(max_opening=0.3)  # wider than the palm
     with pytest.raises(ValueError):
         try_grasp(BOX, np.eye(3), TOP_DOWN)
+    with pytest.raises(ValueError, match='units'):
+        settle(_box((1.0, 0.06, 0.06), 'metres given as millimetres'), seed=0)

@@ -178,6 +178,26 @@ def default_cache_dir() -> Path:
     return Path(base) / 'convex_parts'
 
 
+def _edge_manifold(triangles: IndexArray) -> bool:
+    """Tell whether every edge of the mesh is in at most two triangles (holes allowed)."""
+    edges = np.sort(
+        np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1
+    )
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return bool(counts.max() <= 2)
+
+
+def _preprocess_mode(triangles: IndexArray) -> str:
+    """
+    Return CoACD's preprocessing for the mesh: 'off' for an edge-manifold mesh, else 'auto'.
+
+    CoACD's 'auto' remeshes every mesh that is not watertight on a voxel grid first, which made
+    its search many times slower on the open but edge-manifold shared meshes (a can) for parts
+    of the same volume; meshes with edges in three or more triangles still need it.
+    """
+    return 'off' if _edge_manifold(triangles) else 'auto'
+
+
 def _cache_key(vertices: FloatArray, triangles: IndexArray) -> str:
     import coacd  # noqa: PLC0415 (only needed for the version)
 
@@ -185,7 +205,8 @@ def _cache_key(vertices: FloatArray, triangles: IndexArray) -> str:
     digest.update(np.ascontiguousarray(vertices, dtype='<f8').tobytes())
     digest.update(np.ascontiguousarray(triangles, dtype='<i8').tobytes())
     version = getattr(coacd, '__version__', '1.0.14')
-    digest.update(f'coacd {version} {COACD_THRESHOLD} {COACD_SEED}'.encode())
+    mode = _preprocess_mode(triangles)
+    digest.update(f'coacd {version} {COACD_THRESHOLD} {COACD_SEED} {mode}'.encode())
     return digest.hexdigest()
 
 
@@ -218,7 +239,8 @@ def convex_parts(
     Return convex pieces whose union is the mesh, for the engine's collisions.
 
     A convex mesh (every vertex on its hull) is its own hull; anything else is cut by CoACD
-    (Wei et al. 2022; concavity threshold :data:`COACD_THRESHOLD`, seed :data:`COACD_SEED`). The
+    (Wei et al. 2022; concavity threshold :data:`COACD_THRESHOLD`, seed :data:`COACD_SEED`, its
+    remeshing only for meshes that are not edge-manifold: :func:`_preprocess_mode`). The
     result is kept in `cache_dir` (default :func:`default_cache_dir`) under the SHA-256 of the
     vertices, triangles and settings, written atomically, so the next call reads it back.
 
@@ -258,7 +280,10 @@ def _coacd(vertices: FloatArray, triangles: IndexArray) -> Parts:
 
     coacd.set_log_level('error')
     pieces = coacd.run_coacd(
-        coacd.Mesh(vertices, triangles), threshold=COACD_THRESHOLD, seed=COACD_SEED
+        coacd.Mesh(vertices, triangles),
+        threshold=COACD_THRESHOLD,
+        seed=COACD_SEED,
+        preprocess_mode=_preprocess_mode(triangles),
     )
     parts = []
     for piece_vertices, _ in pieces:

@@ -38,6 +38,7 @@ from mvbb_ros.evaluation.physics.model import (
     CLOSE_OVERSHOOT,
     PhysicsOptions,
     Scene,
+    TABLE_HALF_SIZE,
 )
 from mvbb_ros.evaluation.physics.objects import PhysicsObject
 import numpy as np
@@ -122,7 +123,7 @@ class TrialSettings:
 
     @property
     def options(self) -> PhysicsOptions:
-        """The engine's part of the settings."""
+        """Return the engine's part of the settings."""
         return PhysicsOptions(
             self.friction, self.torsional_friction, self.timestep, self.closing_speed
         )
@@ -154,6 +155,21 @@ class TrialResult:
     seconds: float
 
 
+def _position(start: int) -> slice:
+    """Return the position's place in the qpos of a free joint starting at `start`."""
+    return slice(start, start + 3)
+
+
+def _orientation(start: int) -> slice:
+    """Return the quaternion's place in the qpos of a free joint starting at `start`."""
+    return slice(start + 3, start + 7)
+
+
+def _velocity(start: int) -> slice:
+    """Return the velocities (linear, angular) of a free joint whose dofs start at `start`."""
+    return slice(start, start + 6)
+
+
 def _quat(rotation: FloatArray) -> FloatArray:
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rotation, dtype=np.float64).ravel())
@@ -179,18 +195,19 @@ def _check_pose(pose: ArrayLike, what: str) -> FloatArray:
     return matrix
 
 
-def _set_object(scene: Scene, pose: FloatArray) -> None:
+def place_object(scene: Scene, pose: FloatArray) -> None:
+    """Put the object of `scene` at the 4x4 world `pose`, still."""
     qpos = scene.data.qpos
-    qpos[scene.object_qpos : scene.object_qpos + 3] = pose[:3, 3]
-    qpos[scene.object_qpos + 3 : scene.object_qpos + 7] = _quat(pose[:3, :3])
-    scene.data.qvel[scene.object_dof : scene.object_dof + 6] = 0.0
+    qpos[_position(scene.object_qpos)] = pose[:3, 3]
+    qpos[_orientation(scene.object_qpos)] = _quat(pose[:3, :3])
+    scene.data.qvel[_velocity(scene.object_dof)] = 0.0
 
 
 def _object_pose(scene: Scene) -> FloatArray:
     qpos = scene.data.qpos
     return _pose_matrix(
-        qpos[scene.object_qpos : scene.object_qpos + 3].copy(),
-        qpos[scene.object_qpos + 3 : scene.object_qpos + 7].copy(),
+        qpos[_position(scene.object_qpos)].copy(),
+        qpos[_orientation(scene.object_qpos)].copy(),
     )
 
 
@@ -206,6 +223,11 @@ def settle(
     times that in rad/s) or `settle_seconds` have passed. The pose is then moved in x and y so
     that the object's box is centred on x = y = 0 (the table is the same everywhere).
     """
+    if float(obj.extent.max()) > TABLE_HALF_SIZE:
+        raise ValueError(
+            f'{obj.name} is {obj.extent.max():.2f} m long, more than the table allows '
+            f'({TABLE_HALF_SIZE} m): are its units right?'
+        )
     scene = build_scene(obj, None, settings.options)
     rng = np.random.default_rng([seed])
     quat = rng.normal(size=4)
@@ -214,11 +236,11 @@ def settle(
     world = obj.vertices @ start[:3, :3].T
     start[:3, 3] = [0.0, 0.0, settings.drop_height - float(world[:, 2].min())]
     mujoco.mj_resetData(scene.model, scene.data)
-    _set_object(scene, start)
+    place_object(scene, start)
     model, data = scene.model, scene.data
     still_steps = int(round(0.2 / settings.timestep))
     still = 0
-    velocity = data.qvel[scene.object_dof : scene.object_dof + 6]
+    velocity = data.qvel[_velocity(scene.object_dof)]
     for _ in range(int(math.ceil(settings.settle_seconds / settings.timestep))):
         mujoco.mj_step(model, data)
         at_rest = (
@@ -251,6 +273,9 @@ class _Trial:
         self.step = 0
         self.gripped_step = -(10**9)
         self.watch_grip = False
+        # Views into the engine's arrays, made once: the bindings build a new view per access.
+        self.mocap_pos = scene.data.mocap_pos[scene.mocap]
+        self.mocap_quat = scene.data.mocap_quat[scene.mocap]
 
     # -- what touches what ------------------------------------------------------------------
     def _touch_mask(self) -> np.ndarray:
@@ -273,10 +298,9 @@ class _Trial:
 
     # -- moving the hand ----------------------------------------------------------------------
     def _drive(self, position: FloatArray, quat: FloatArray) -> None:
-        data, mocap = self.scene.data, self.scene.mocap
-        data.mocap_pos[mocap] = position
-        data.mocap_quat[mocap] = quat
-        mujoco.mj_step(self.scene.model, data)
+        self.mocap_pos[:] = position
+        self.mocap_quat[:] = quat
+        mujoco.mj_step(self.scene.model, self.scene.data)
         self.step += 1
         if self.watch_grip and self.step % 5 == 0 and self._pads_on_object():
             self.gripped_step = self.step
@@ -306,12 +330,12 @@ class _Trial:
         gap = hand.max_opening if width is None else float(np.clip(width, 0.0, hand.max_opening))
         mujoco.mj_resetData(model, data)
         self.step, self.gripped_step, self.watch_grip = 0, -(10**9), False
-        _set_object(scene, object_pose)
+        place_object(scene, object_pose)
         approach = grasp[:3, 2]
         quat = _quat(grasp[:3, :3])
         start = grasp[:3, 3] - settings.standoff * approach
-        data.qpos[scene.hand_qpos : scene.hand_qpos + 3] = start
-        data.qpos[scene.hand_qpos + 3 : scene.hand_qpos + 7] = quat
+        data.qpos[_position(scene.hand_qpos)] = start
+        data.qpos[_orientation(scene.hand_qpos)] = quat
         data.mocap_pos[scene.mocap] = start
         data.mocap_quat[scene.mocap] = quat
         data.qpos[scene.left_qpos] = data.qpos[scene.right_qpos] = gap / 2.0
