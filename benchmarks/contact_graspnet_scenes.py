@@ -2,7 +2,7 @@
 Contact-GraspNet on its example scenes: do its grasps land on the objects, which frame, how fast.
 
     tools/cgn/make_venv.sh                                  # once: .venv-cgn
-    .venv/bin/python benchmarks/contact_graspnet_scenes.py  # 10 minutes with other jobs running
+    .venv/bin/python benchmarks/contact_graspnet_scenes.py  # 8 minutes here, other jobs running
     .venv/bin/python benchmarks/contact_graspnet_scenes.py --top 10 --json out/cgn_scenes.json
 
 cgn-pytorch ships three cluttered tabletop scenes (``cgn_pytorch/scenes/*.npz``, rendered from
