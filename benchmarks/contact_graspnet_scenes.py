@@ -2,19 +2,20 @@
 Contact-GraspNet on its example scenes: do its grasps land on the objects, which frame, how fast.
 
     tools/cgn/make_venv.sh                                  # once: .venv-cgn
-    .venv/bin/python benchmarks/contact_graspnet_scenes.py  # about 2 minutes here
+    .venv/bin/python benchmarks/contact_graspnet_scenes.py  # 8 minutes here, other jobs running
     .venv/bin/python benchmarks/contact_graspnet_scenes.py --top 10 --json out/cgn_scenes.json
 
 cgn-pytorch ships three cluttered tabletop scenes (``cgn_pytorch/scenes/*.npz``, rendered from
 ACRONYM): each holds two clouds of 20,000 points in a z-up world frame with its mean subtracted,
 a mask of the target object's points in the first cloud, that mean, and the camera's pose (OpenGL
 axes: it looks along its -z). Each scene is run through :class:`ContactGraspNet` (the adapter the
-physics benchmark uses, so the pose conversion is exercised too) three ways:
+physics benchmark uses, so the pose conversion is exercised too) four ways:
 
 - ``world+object``: the z-up cloud as shipped, with the object's points (the local region);
 - ``world``: the same cloud, no object given (grasps anywhere in the scene);
 - ``camera+object``: the same points and object in the camera's frame (OpenCV axes: x right,
-  y down, z forward), the poses mapped back to the world frame before they are judged.
+  y down, z forward), the poses mapped back to the world frame before they are judged;
+- ``object only``: the object's points alone (a segmented view without the table), z-up.
 
 A grasp *lands on the object* when the point between its fingertips (our pose's origin) lies
 within ``--near`` (2 cm) of one of the object's points; it *encloses* the object when at least
@@ -22,7 +23,7 @@ five object points lie between the open Panda pads (8 cm apart, 1.8 cm square). 
 grasps approaching
 downwards (approach z < 0 in the world frame) and from the camera's side (approach pointing away
 from the camera, as a hand reaching past what the camera sees would). Time: the server's wall
-and CPU seconds per view, median over twelve views (the three runs above plus the second cloud
+and CPU seconds per view, median over fifteen views (the four runs above plus the second cloud
 of each scene without an object), once with one torch thread and once with torch's default.
 """
 
@@ -113,6 +114,7 @@ def run(cgn: ContactGraspNet, scenes: list[Path], top: int, near_m: float) -> tu
             'world+object': (cloud, target, np.eye(4)),
             'world': (cloud, None, np.eye(4)),
             'camera+object': (transform(to_camera, cloud), transform(to_camera, target), to_world),
+            'object only': (target, target, np.eye(4)),
         }
         for name, (points, obj, back) in runs.items():
             proposals = cgn.grasps(points, obj, max_grasps=top)

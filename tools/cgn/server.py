@@ -22,8 +22,9 @@ Protocol, one JSON object a line:
 What is done to a request, as the package's README and example scenes prescribe: with an object,
 the scene is cut to a cube around the object (side twice the object's longest extent, between 0.3
 and 0.6 m: the network's local region) and the object's points are marked, so that only grasps
-whose contact lies on the object count; at most 20,000 points (a seeded sample); the mean is
-subtracted (the scenes it was trained on are centred); farthest point sampling picks the 2,048
+whose contact lies on the object count; at most 20,000 points, in a seeded random order (as the
+example scenes are: a full ball query keeps its lowest indices); the mean is subtracted (the
+scenes it was trained on are centred); farthest point sampling picks the 2,048
 points the network predicts grasps for; the confidences pass a sigmoid; the grasps above
 ``min_score`` are returned best first. torch and numpy are seeded with the request's seed before
 each request, so the same request gives the same answer whatever came before it.
@@ -109,9 +110,11 @@ def predict(
         cloud, mask = scene, np.ones(len(scene), bool)
     if len(cloud) < 4:
         raise ValueError(f'{len(cloud)} finite points: too few to grasp from')
-    if len(cloud) > MAX_POINTS:
-        keep = np.sort(rng.choice(len(cloud), MAX_POINTS, replace=False))
-        cloud, mask = cloud[keep], mask[keep]
+    # A seeded random order, at most MAX_POINTS: the training scenes (and the shipped examples)
+    # are in random order, and the ball queries keep the lowest indices when a ball is full, so
+    # an ordered cloud (image rows, or the scene before the object) would bias every feature.
+    keep = rng.permutation(len(cloud))[:MAX_POINTS]
+    cloud, mask = cloud[keep], mask[keep]
     mean = cloud.mean(axis=0)
     pos = torch.from_numpy((cloud - mean).astype(np.float32))
     batch = torch.zeros(len(pos), dtype=torch.long)

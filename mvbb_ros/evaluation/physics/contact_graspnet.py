@@ -9,8 +9,8 @@ then sends it one view at a time through files (``.npz``) and JSON lines, so the
 once per benchmark, not once per view. How it was checked: ``docs/contact_graspnet.md``.
 
 Input frame: points in metres, z-up world frame (the table top horizontal, up = +z), as in the
-scenes the network was trained on and ships as examples; fed a camera-frame cloud it proposes
-grasps from behind the object.
+scenes the network was trained on and ships as examples; fed a camera-frame cloud it may propose
+grasps from behind the object or from below the table.
 
 Pose conversion. cgn-pytorch's grasp transform ``T`` is the Franka (Panda) hand's base frame:
 its z axis is the approach (palm towards the object), its x axis the closing direction (the
