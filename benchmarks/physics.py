@@ -1,0 +1,753 @@
+"""
+The proving ground's benchmark (issue 36): contenders' grasps tried in a physics trial.
+
+    .venv/bin/python benchmarks/physics.py --quick                       # ~100 views, validation
+    .venv/bin/python benchmarks/physics.py --set validation --objects 100 --views 3
+    .venv/bin/python benchmarks/physics.py --set shared --views 10 --hand wide
+    .venv/bin/python benchmarks/physics.py --meshes my_objects/ --units mm --views 5
+    .venv/bin/python benchmarks/physics.py --quick --json out/physics.json --pictures out/physics
+
+What runs: each object (pybullet_data's random objects, split by name into a development set
+000-499 and a validation set 500-999 that no rule or constant is tuned on; the shared meshes; or
+every PLY/OBJ/STL of a folder) rests on the table where the physics engine settled it
+(:func:`mvbb_ros.evaluation.physics.trial.settle`). The project's depth camera renders single
+views of it from seeded random viewpoints (:mod:`mvbb_ros.evaluation.physics.views`). Each
+contender gets the same view and proposes grasp poses, best first:
+
+* ``node``: the node's pipeline with its defaults (``PipelineSettings()``), the view's up
+  direction passed as ``up_direction`` (what a robot with TF knows: the benchmark of
+  ``benchmarks/views.py`` calls it ``node+up``) and the hand's opening as ``gripper_max_width``;
+* ``paper``: the paper's algorithm (``PipelineSettings.paper()``: face-centre grasps, no up
+  direction) with the hand's opening;
+* ``primitive``: the cloud's minimum box grasped from above across its narrowest side
+  (:mod:`mvbb_ros.evaluation.physics.primitive`, the rule of ROS's ``simple_grasping``);
+* ``cgn``: Contact-GraspNet in its own virtual environment, fed the z-up world-frame scene and the
+  object's points (skipped with a message when its environment is missing).
+
+A contender's first five grasps are tried in the physics trial, best first, until one holds
+(:func:`mvbb_ros.evaluation.physics.trial.try_grasp`: the hand fully open, approach, close, lift,
+shake). Top-1: the first grasp holds; top-5: one of the first five does; a view without grasps
+fails both. The
+table gives both with 95 % Wilson intervals per set and contender, and the contender's time per
+view (proposing only, not the trial). The same grasps are judged by the project's analytic pad
+judge (:func:`mvbb_ros.evaluation.grasp_judge.judge_grasps`, pads of the hand's opening, the table
+as support): agreement with the trial and a confusion table.
+
+Node grasps are tried at their fingertip point: the published pose's origin moved ``depth`` along
+the approach (``docs/grasp_rules.md``), the point where the node means the fingertips to stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+import contextlib
+from dataclasses import dataclass, field
+import json
+import math
+import os
+from pathlib import Path
+import subprocess
+import sys
+import time
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+
+#: Grasps tried per view and contender ("one of the top five").
+TOP_K = 5
+#: Every contender, in table order.
+CONTENDERS = ('node', 'paper', 'primitive', 'cgn')
+#: The object sets by name (``--meshes DIR`` adds one named after the folder).
+SETS = ('development', 'validation', 'shared')
+#: Quick mode: objects per random set and views per object (about 100 views).
+QUICK_OBJECTS, QUICK_VIEWS = 25, 4
+#: Full mode: objects per random set and views per object (300 views a set).
+FULL_OBJECTS, FULL_VIEWS = 100, 3
+#: Failures drawn in the montage.
+MONTAGE_PANELS = 24
+#: Stage name of a view where the contender proposed nothing.
+NO_GRASP = 'no grasp'
+
+
+# Contenders ----------------------------------------------------------------------------------
+
+
+def fingertip_pose(grasp: Any) -> Any:
+    """Return a node grasp as a 4x4 pose (cloud frame) at its fingertips' stopping point."""
+    from mvbb_ros.evaluation.physics.views import grasp_matrix
+    import numpy as np
+
+    approach = np.asarray(grasp.approach, dtype=np.float64)
+    tip = np.asarray(grasp.position, dtype=np.float64) + float(grasp.depth) * approach
+    return grasp_matrix(tip, approach, grasp.closing)
+
+
+def pipeline_settings(preset: str, opening: float, up: Sequence[float] | None):
+    """Return a preset's settings with the hand's opening (and the up direction when given)."""
+    from mvbb_ros.pipeline.settings import PRESETS
+
+    changes: dict[str, Any] = {'gripper_max_width': float(opening)}
+    if up is not None:
+        changes['up_direction'] = [float(v) for v in up]
+    return PRESETS[preset].updated(changes)
+
+
+def node_grasps(view: Any, opening: float) -> list[Any]:
+    """Run the node (defaults, the view's up direction); return world-frame poses, best first."""
+    from mvbb_ros.pipeline.process import process_points
+
+    result = process_points(view.points, pipeline_settings('node', opening, view.up))
+    return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
+
+
+def paper_grasps(view: Any, opening: float) -> list[Any]:
+    """Return the paper's face-centre grasps (paper preset, no up), world frame, best first."""
+    from mvbb_ros.pipeline.process import process_points
+
+    result = process_points(view.points, pipeline_settings('paper', opening, None))
+    return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
+
+
+def primitive_contender(view: Any, opening: float) -> list[Any]:
+    """Return the box grasped from above across its narrowest side, world frame, best first."""
+    from mvbb_ros.evaluation.physics.primitive import primitive_grasps
+
+    return primitive_grasps(view.to_world(view.points), opening)
+
+
+class CgnContender:
+    """Contact-GraspNet, started once for the whole run; ``unavailable`` says why it cannot."""
+
+    def __init__(self, python: Path | None = None, threads: int | None = 1) -> None:
+        """Start the network (`python`: its environment's Python), or record why it cannot."""
+        self.unavailable: str | None = None
+        self._stack = contextlib.ExitStack()
+        self._net: Any = None
+        try:
+            from mvbb_ros.evaluation.physics.contact_graspnet import (
+                ContactGraspNet,
+                ContactGraspNetUnavailable,
+            )
+        except ImportError as error:
+            self.unavailable = f'the Contact-GraspNet wrapper is not in this branch ({error})'
+            return
+        try:
+            self._net = self._stack.enter_context(ContactGraspNet(python, threads=threads))
+        except ContactGraspNetUnavailable as error:
+            self.unavailable = str(error)
+
+    def __call__(self, view: Any, opening: float) -> list[Any]:
+        """Propose grasps on the view's z-up world-frame scene: world poses, best first."""
+        proposals = self._net.grasps(
+            view.to_world(view.scene_points).astype('float32'),
+            view.to_world(view.points).astype('float32'),
+        )
+        return [proposal.pose for proposal in proposals]
+
+    def close(self) -> None:
+        """Stop the network."""
+        self._stack.close()
+
+
+#: Contender name -> function (view, opening) -> world-frame 4x4 poses, best first.
+PROPOSERS: dict[str, Callable[[Any, float], list[Any]]] = {
+    'node': node_grasps,
+    'paper': paper_grasps,
+    'primitive': primitive_contender,
+}
+
+
+# Objects ---------------------------------------------------------------------------------------
+
+
+def object_sets(args: argparse.Namespace) -> Iterator[tuple[str, list[Any]]]:
+    """Yield (set name, objects) for the sets asked for on the command line."""
+    from mvbb_ros.evaluation.physics import objects as physics_objects
+    import numpy as np
+
+    for name in args.sets:
+        if name == 'shared':
+            models = args.data / 'models'
+            if not models.is_dir():
+                print(f'shared meshes not found: {models} (set MVBB_SHARED_DATA); set skipped')
+                continue
+            items = list(physics_objects.shared_mesh_objects(args.data))
+            if args.objects is not None:
+                items = items[: args.objects]
+            yield name, items
+        else:
+            low = 0 if name == 'development' else 500
+            count = args.objects if args.objects is not None else args.default_objects
+            rng = np.random.default_rng([args.seed, low])
+            picked = sorted(
+                rng.choice(np.arange(low, low + 500), size=min(count, 500), replace=False)
+            )
+            yield name, [physics_objects.random_object(int(i), args.seed) for i in picked]
+    for folder in args.meshes:
+        items = list(physics_objects.mesh_folder_objects(folder, args.units))
+        if args.objects is not None:
+            items = items[: args.objects]
+        yield Path(folder).name or str(folder), items
+
+
+# Running -------------------------------------------------------------------------------------
+
+
+@dataclass
+class Results:
+    """Everything one run measured: per-grasp records and per-view summaries."""
+
+    records: list[dict[str, Any]] = field(default_factory=list)
+    views: list[dict[str, Any]] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+    failures: list[dict[str, Any]] = field(default_factory=list)
+
+
+def try_view(
+    view: Any,
+    set_name: str,
+    proposers: Mapping[str, Callable[[Any, float], list[Any]]],
+    hand: Any,
+    trial_settings: Any,
+    target: Any,
+    results: Results,
+) -> None:
+    """Run every contender on one view, try their first grasps, judge them; add the rows."""
+    from mvbb_ros.evaluation.grasp_judge import judge_grasps, PadGripper, STATUS_NAMES
+    from mvbb_ros.evaluation.physics import trial
+    import numpy as np
+
+    opening = hand_opening(hand)
+    for name, propose in proposers.items():
+        start = time.perf_counter()
+        proposed = [np.asarray(p, dtype=np.float64) for p in propose(view, opening)]
+        poses = proposed[:TOP_K]
+        seconds = time.perf_counter() - start
+        start = time.perf_counter()
+        # Best first, each from the same start with the hand fully open, until one holds: the
+        # first success decides top-1 and top-5, the grasps after it cannot change either.
+        stages, successes = [], []
+        for pose in poses:
+            outcome = trial.try_grasp(
+                view.placed.obj,
+                view.placed.pose,
+                pose,
+                hand,
+                trial.DEFAULT_SETTINGS if trial_settings is None else trial_settings,
+            )
+            stages.append(str(outcome.stage))
+            successes.append(bool(outcome.success))
+            if outcome.success:
+                break
+        poses = poses[: len(stages)]
+        trial_seconds = time.perf_counter() - start
+        judged: list[str | None] = [None] * len(poses)
+        if poses and target is not None:
+            stack = np.array(poses)
+            verdicts = judge_grasps(
+                target,
+                (stack[:, :3, 3], stack[:, :3, 2], stack[:, :3, 1]),
+                PadGripper(max_width=opening),
+                support=(np.array([0.0, 0.0, 1.0]), 0.0),
+            )
+            judged = [STATUS_NAMES[int(s)] for s in verdicts.status]
+        base = {'set': set_name, 'object': view.placed.name, 'view': view.index, 'contender': name}
+        for rank, (pose, stage, success, judge) in enumerate(
+            zip(poses, stages, successes, judged, strict=True)
+        ):
+            results.records.append(
+                {
+                    **base,
+                    'rank': rank,
+                    'success': success,
+                    'stage': stage,
+                    'judge': judge,
+                    'pose': [[round(float(v), 6) for v in row] for row in pose],
+                }
+            )
+        row = {
+            **base,
+            'proposed': len(proposed),
+            'tried': len(poses),
+            'top1': bool(successes[:1] and successes[0]),
+            'top5': any(successes),
+            'first_success': successes.index(True) if any(successes) else None,
+            'stage': stages[0] if stages else NO_GRASP,
+            'seconds': seconds,
+            'trial_seconds': trial_seconds,
+        }
+        results.views.append(row)
+        if name == 'node' and not row['top1'] and len(results.failures) < MONTAGE_PANELS:
+            results.failures.append(
+                {**row, 'view_data': view, 'pose': poses[0] if poses else None}
+            )
+
+
+def hand_opening(hand: Any) -> float:
+    """Return the hand's largest opening between the fingers, metres."""
+    return float(hand.max_opening)
+
+
+def run(
+    sets: Iterable[tuple[str, list[Any]]],
+    proposers: Mapping[str, Callable[[Any, float], list[Any]]],
+    hand: Any,
+    views_per_object: int,
+    seed: int,
+    *,
+    judge: bool = True,
+    trial_settings: Any = None,
+    log: Callable[[str], None] = print,
+    checkpoint: Callable[[Results], None] | None = None,
+) -> Results:
+    """Settle each object, render its views and try every contender on them."""
+    from mvbb_ros.evaluation.mesh import GraspTarget
+    from mvbb_ros.evaluation.physics import trial
+    from mvbb_ros.evaluation.physics.views import physics_views, PlacedObject
+
+    results = Results()
+    for set_name, objects in sets:
+        for number, obj in enumerate(objects):
+            start = time.perf_counter()
+            placed = PlacedObject.place(obj, trial.settle(obj, seed))
+            target = GraspTarget(placed.vertices, placed.triangles) if judge else None
+            views = 0
+            for view in physics_views(placed, views_per_object, seed=seed):
+                try_view(view, set_name, proposers, hand, trial_settings, target, results)
+                views += 1
+            log(
+                f'  {set_name} {number + 1}/{len(objects)} {placed.name}: {views} views, '
+                f'{time.perf_counter() - start:.1f} s'
+            )
+            if checkpoint is not None:
+                checkpoint(results)
+    return results
+
+
+# Tables ------------------------------------------------------------------------------------------
+
+
+def wilson(successes: int, trials: int) -> tuple[float, float]:
+    """95 % Wilson interval (:func:`mvbb_ros.evaluation.physics.views.wilson_interval`)."""
+    from mvbb_ros.evaluation.physics.views import wilson_interval
+
+    return wilson_interval(successes, trials)
+
+
+def summarize(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Top-1 and top-5 shares with Wilson intervals and the time per view of some view rows."""
+    count = len(rows)
+    top1 = sum(bool(r['top1']) for r in rows)
+    top5 = sum(bool(r['top5']) for r in rows)
+    return {
+        'views': count,
+        'top1': top1 / count if count else None,
+        'top1_ci': list(wilson(top1, count)),
+        'top5': top5 / count if count else None,
+        'top5_ci': list(wilson(top5, count)),
+        'no_grasp': sum(r['proposed'] == 0 for r in rows),
+        'seconds_per_view': sum(r['seconds'] for r in rows) / count if count else None,
+        'trial_seconds_per_view': sum(r['trial_seconds'] for r in rows) / count if count else None,
+    }
+
+
+def _share(value: float | None, interval: Sequence[float]) -> str:
+    if value is None:
+        return '-'
+    return f'{100 * value:.0f} % [{100 * interval[0]:.0f}, {100 * interval[1]:.0f}]'
+
+
+def success_table(views: Sequence[Mapping[str, Any]], contenders: Sequence[str]) -> str:
+    """Markdown table: per set and contender, top-1 and top-5 with 95 % intervals, s / view."""
+    header = (
+        'set',
+        'contender',
+        'views',
+        'top-1 [95 % CI]',
+        'top-5 [95 % CI]',
+        'no grasp',
+        's / view',
+    )
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+    for set_name in dict.fromkeys(r['set'] for r in views):
+        for name in contenders:
+            rows = [r for r in views if r['set'] == set_name and r['contender'] == name]
+            if not rows:
+                continue
+            s = summarize(rows)
+            cells = (
+                set_name,
+                name,
+                str(s['views']),
+                _share(s['top1'], s['top1_ci']),
+                _share(s['top5'], s['top5_ci']),
+                str(s['no_grasp']),
+                f'{s["seconds_per_view"]:.2f}',
+            )
+            lines.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines)
+
+
+def stage_table(views: Sequence[Mapping[str, Any]], contenders: Sequence[str]) -> str:
+    """How each contender's top grasp ended: counts per trial stage."""
+    stages = sorted({r['stage'] for r in views})
+    lines = ['| contender | ' + ' | '.join(stages) + ' |', '|' + '---|' * (len(stages) + 1)]
+    for name in contenders:
+        rows = [r for r in views if r['contender'] == name]
+        if rows:
+            counts = [str(sum(r['stage'] == stage for r in rows)) for stage in stages]
+            lines.append(f'| {name} | ' + ' | '.join(counts) + ' |')
+    return '\n'.join(lines)
+
+
+def judge_agreement(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """How often the analytic judge agrees with the trial, and the confusion counts."""
+    judged = [r for r in records if r['judge'] is not None]
+    confusion = {
+        'trial holds, judge holds': sum(r['success'] and r['judge'] == 'holds' for r in judged),
+        'trial holds, judge fails': sum(r['success'] and r['judge'] != 'holds' for r in judged),
+        'trial fails, judge holds': sum(
+            not r['success'] and r['judge'] == 'holds' for r in judged
+        ),
+        'trial fails, judge fails': sum(
+            not r['success'] and r['judge'] != 'holds' for r in judged
+        ),
+    }
+    agree = confusion['trial holds, judge holds'] + confusion['trial fails, judge fails']
+    disagreements: dict[str, int] = {}
+    for r in judged:
+        if r['success'] != (r['judge'] == 'holds'):
+            key = f'trial {r["stage"]} / judge {r["judge"]}'
+            disagreements[key] = disagreements.get(key, 0) + 1
+    return {
+        'grasps': len(judged),
+        'agreement': agree / len(judged) if judged else None,
+        'agreement_ci': list(wilson(agree, len(judged))),
+        'confusion': confusion,
+        'disagreements': dict(sorted(disagreements.items(), key=lambda kv: -kv[1])),
+    }
+
+
+def judge_table(records: Sequence[Mapping[str, Any]], contenders: Sequence[str]) -> str:
+    """Agreement of the analytic judge with the trial, per contender and in all."""
+    header = (
+        'contender',
+        'grasps',
+        'agreement [95 % CI]',
+        'both hold',
+        'trial only',
+        'judge only',
+        'both fail',
+    )
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+    for name in [*contenders, 'all']:
+        sel = [r for r in records if name == 'all' or r['contender'] == name]
+        a = judge_agreement(sel)
+        if not a['grasps']:
+            continue
+        c = a['confusion']
+        cells = (
+            name,
+            str(a['grasps']),
+            _share(a['agreement'], a['agreement_ci']),
+            str(c['trial holds, judge holds']),
+            str(c['trial holds, judge fails']),
+            str(c['trial fails, judge holds']),
+            str(c['trial fails, judge fails']),
+        )
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines)
+
+
+def report(results: Results, contenders: Sequence[str], meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Return the JSON record: totals per contender and set, the judge's agreement, every row."""
+    views = results.views
+    return {
+        **meta,
+        'contenders': {
+            name: summarize([r for r in views if r['contender'] == name])
+            for name in contenders
+            if any(r['contender'] == name for r in views)
+        },
+        'sets': {
+            set_name: {
+                name: summarize(sel)
+                for name in contenders
+                if (sel := [r for r in views if r['set'] == set_name and r['contender'] == name])
+            }
+            for set_name in dict.fromkeys(r['set'] for r in views)
+        },
+        'judge': {
+            name: judge_agreement(
+                [r for r in results.records if name == 'all' or r['contender'] == name]
+            )
+            for name in [*contenders, 'all']
+        },
+        'skipped': results.skipped,
+        'views': views,
+        'records': results.records,
+    }
+
+
+def write_json(path: Path, data: Mapping[str, Any]) -> None:
+    """Write the record atomically."""
+    from mvbb_ros.common.atomic import atomic_open
+
+    with atomic_open(path) as handle:
+        json.dump(data, handle, indent=1)
+
+
+# Pictures --------------------------------------------------------------------------------------
+
+
+def gripper_lines(pose: Any, opening: float, finger: float = 0.05) -> list[Any]:
+    """Return world-frame polylines of a hand at `pose`: two fingers, the palm, the wrist."""
+    from mvbb_ros.evaluation.physics.views import transform_points
+    import numpy as np
+
+    half = opening / 2.0
+    local = [
+        [(0.0, -half, 0.0), (0.0, -half, -finger), (0.0, half, -finger), (0.0, half, 0.0)],
+        [(0.0, 0.0, -finger), (0.0, 0.0, -2.0 * finger)],
+    ]
+    return [transform_points(pose, np.array(line)) for line in local]
+
+
+def draw_montage(failures: Sequence[Mapping[str, Any]], hand: Any, path: Path) -> int:
+    """
+    Draw the node's failed views in a grid; return how many panels.
+
+    Each panel is the view as its camera saw it (pixels): the table grey, the object coloured by
+    depth, the node's top grasp as a hand (red: the open fingers, the palm and the wrist; none
+    when it proposed nothing); the title names the view, the object's world box (x, y, z, cm)
+    and the trial's stage.
+    """
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from mvbb_ros.common.atomic import atomic_path
+    from mvbb_ros.evaluation.camera import camera_intrinsics, DEFAULT_HEIGHT, DEFAULT_WIDTH
+    import numpy as np
+
+    shown = list(failures[:MONTAGE_PANELS])
+    if not shown:
+        return 0
+    fx, fy, cx, cy = camera_intrinsics(DEFAULT_WIDTH, DEFAULT_HEIGHT)
+    cols = min(6, len(shown))
+    rows = math.ceil(len(shown) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 3.0 * rows), squeeze=False)
+    for ax in axes.flat:
+        ax.axis('off')
+    for ax, failure in zip(axes.flat, shown, strict=False):
+        view = failure['view_data']
+
+        def pixels(camera_points: Any) -> Any:
+            p = np.asarray(camera_points, dtype=np.float64).reshape(-1, 3)
+            return fx * p[:, 0] / p[:, 2] + cx, fy * p[:, 1] / p[:, 2] + cy
+
+        u, v = pixels(view.scene_points)
+        ax.scatter(u, v, s=1.0, c='0.85', linewidths=0)
+        u, v = pixels(view.points)
+        ax.scatter(u, v, s=3.0, c=view.points[:, 2], cmap='viridis', linewidths=0)
+        bounds = [u.min(), u.max(), v.min(), v.max()]
+        if failure['pose'] is not None:
+            for line in gripper_lines(failure['pose'], hand.max_opening, hand.finger_depth):
+                gu, gv = pixels(view.to_camera(line))
+                ax.plot(gu, gv, color='red', linewidth=1.5)
+                bounds = [
+                    min(bounds[0], gu.min()),
+                    max(bounds[1], gu.max()),
+                    min(bounds[2], gv.min()),
+                    max(bounds[3], gv.max()),
+                ]
+        pad = max(0.15 * max(bounds[1] - bounds[0], bounds[3] - bounds[2]), 15.0)
+        ax.set_xlim(bounds[0] - pad, bounds[1] + pad)
+        ax.set_ylim(bounds[3] + pad, bounds[2] - pad)
+        ax.set_aspect('equal')
+        size = ' x '.join(f'{100 * v:.0f}' for v in view.placed.high - view.placed.low)
+        ax.set_title(f'{view.name} ({size} cm)\n{failure["stage"]}', fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format='png')
+    plt.close(fig)
+    return len(shown)
+
+
+# Command line ------------------------------------------------------------------------------------
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """Parse the command line."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument(
+        '--set',
+        dest='sets',
+        default=None,
+        help='object sets, comma separated: development, validation, shared '
+        '(default: validation, or none when --meshes is given)',
+    )
+    parser.add_argument(
+        '--meshes',
+        action='append',
+        default=[],
+        type=Path,
+        metavar='DIR',
+        help='a folder of PLY/OBJ/STL meshes (repeatable)',
+    )
+    parser.add_argument(
+        '--units', choices=('m', 'mm', 'cm'), default='m', help='units of the --meshes files'
+    )
+    parser.add_argument(
+        '--objects',
+        type=int,
+        default=None,
+        help=f'objects per set (random sets: {FULL_OBJECTS}, quick {QUICK_OBJECTS})',
+    )
+    parser.add_argument(
+        '--views',
+        type=int,
+        default=None,
+        help=f'views per object ({FULL_VIEWS}, quick {QUICK_VIEWS})',
+    )
+    parser.add_argument(
+        '--hand',
+        choices=('franka', 'wide'),
+        default='franka',
+        help='franka: 8 cm opening; wide: 14 cm',
+    )
+    parser.add_argument(
+        '--contenders',
+        default=','.join(CONTENDERS),
+        help='comma separated, from ' + ', '.join(CONTENDERS),
+    )
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument(
+        '--quick', action='store_true', help=f'{QUICK_OBJECTS} objects x {QUICK_VIEWS} views a set'
+    )
+    parser.add_argument('--no-judge', action='store_true', help='skip the analytic judge')
+    parser.add_argument('--json', type=Path, default=None, metavar='OUT')
+    parser.add_argument(
+        '--pictures',
+        type=Path,
+        default=None,
+        metavar='DIR',
+        help="write a montage of the node's failures here",
+    )
+    parser.add_argument(
+        '--cgn-python',
+        type=Path,
+        default=None,
+        metavar='PYTHON',
+        help="Contact-GraspNet's environment (default: .venv-cgn/bin/python of this checkout)",
+    )
+    parser.add_argument(
+        '--data', type=Path, default=DEFAULT_DATA, help='the shared data folder (for --set shared)'
+    )
+    args = parser.parse_args(argv)
+    if args.sets is None:
+        args.sets = [] if args.meshes else ['validation']
+    else:
+        args.sets = [s.strip() for s in args.sets.split(',') if s.strip()]
+    unknown = sorted(set(args.sets) - set(SETS))
+    if unknown:
+        parser.error(f'unknown set {unknown}; known: {", ".join(SETS)}')
+    args.contenders = [c.strip() for c in args.contenders.split(',') if c.strip()]
+    unknown = sorted(set(args.contenders) - set(CONTENDERS))
+    if unknown:
+        parser.error(f'unknown contender {unknown}; known: {", ".join(CONTENDERS)}')
+    args.default_objects = QUICK_OBJECTS if args.quick else FULL_OBJECTS
+    if args.views is None:
+        args.views = QUICK_VIEWS if args.quick else FULL_VIEWS
+    if args.objects is not None and args.objects < 1 or args.views < 1:
+        parser.error('--objects and --views must be >= 1')
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark; print the tables; write the JSON and the montage when asked."""
+    args = parse_args(argv)
+    from mvbb_ros.evaluation.physics.hand import HANDS
+
+    hand = HANDS[args.hand]
+    commit = subprocess.run(
+        ['git', 'log', '-1', '--format=%h %s'], capture_output=True, text=True, cwd=REPO
+    ).stdout.strip()
+    print(f'commit: {commit}')
+    print(
+        f'sets {", ".join(map(str, [*args.sets, *args.meshes]))}; {args.views} views per object; '
+        f'hand {args.hand} ({100 * hand_opening(hand):.0f} cm); seed {args.seed}; '
+        f'contenders {", ".join(args.contenders)}'
+    )
+    proposers: dict[str, Callable[[Any, float], list[Any]]] = {}
+    skipped: dict[str, str] = {}
+    cgn: CgnContender | None = None
+    for name in args.contenders:
+        if name == 'cgn':
+            cgn = CgnContender(args.cgn_python)
+            if cgn.unavailable is not None:
+                skipped['cgn'] = cgn.unavailable
+                print(f'contender cgn skipped: {cgn.unavailable}')
+                cgn = None
+                continue
+            proposers['cgn'] = cgn
+        else:
+            proposers[name] = PROPOSERS[name]
+    meta = {
+        'commit': commit,
+        'command': ' '.join(sys.argv),
+        'hand': args.hand,
+        'opening': hand_opening(hand),
+        'views_per_object': args.views,
+        'seed': args.seed,
+        'top_k': TOP_K,
+    }
+    names = list(proposers)
+
+    def checkpoint(results: Results) -> None:
+        results.skipped = skipped
+        if args.json is not None:
+            write_json(args.json, report(results, names, meta))
+
+    start = time.perf_counter()
+    try:
+        results = run(
+            object_sets(args),
+            proposers,
+            hand,
+            args.views,
+            args.seed,
+            judge=not args.no_judge,
+            log=lambda message: print(message, file=sys.stderr, flush=True),
+            checkpoint=checkpoint,
+        )
+    finally:
+        if cgn is not None:
+            cgn.close()
+    results.skipped = skipped
+    meta['seconds'] = time.perf_counter() - start
+    print()
+    print(success_table(results.views, names))
+    print('\nHow the top grasp ended (trial stage):\n')
+    print(stage_table(results.views, names))
+    if not args.no_judge:
+        print('\nThe analytic judge against the trial (every tried grasp):\n')
+        print(judge_table(results.records, names))
+        disagreements = judge_agreement(results.records)['disagreements']
+        if disagreements:
+            print('disagreements: ' + ', '.join(f'{k}: {v}' for k, v in disagreements.items()))
+    print(f'\n{meta["seconds"]:.0f} s')
+    if args.json is not None:
+        write_json(args.json, report(results, names, meta))
+        print(f'wrote {args.json}')
+    if args.pictures is not None and 'node' in proposers:
+        path = args.pictures / f'node_failures_{args.hand}.png'
+        panels = draw_montage(results.failures, hand, path)
+        print(f'wrote {path} ({panels} failures)' if panels else 'no node failures to draw')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
