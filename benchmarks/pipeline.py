@@ -24,15 +24,15 @@ or for the float32 -> float64 copy). ``ratio`` is our median total over the chai
 Frames:
 
 - ``camera 640x480``: a 640 x 480 organized frame from the package's virtual depth camera
-  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.evaluation.synthetic` scene), close enough
-  that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object are
-  NaN, as an organized segmentation delivers them. Four noise seeds.
+  (:mod:`mvbb_ros.evaluation.camera`, on a :mod:`mvbb_ros.evaluation.synthetic` scene), close
+  enough that the mug fills most of the view (about 250k of the 307k pixels); pixels off the object
+  are NaN, as an organized segmentation delivers them. Four noise seeds.
 - ``table-top 640x480``: a raw 640 x 480 frame of a table-top scene
   (:func:`mvbb_ros.evaluation.synthetic.table_top_frame`: 1 to 4 objects on a table, a wall behind
   it and the floor, nothing segmented): the scene stage finds the table and keeps what stands
   on it. Four seeds.
-- ``organized 300k``: :func:`mvbb_ros.evaluation.synthetic.organized_frame` with 300 000 object points
-  (1214 x 910). Four noise seeds.
+- ``organized 300k``: :func:`mvbb_ros.evaluation.synthetic.organized_frame` with 300 000 object
+  points (1214 x 910). Four noise seeds.
 - every real scan in the shared ``scans`` folder and the Bunny's vertices, as float32 clouds;
 - every cloud in the shared bags, read with :class:`mvbb_ros.ros.bag.CloudBag` and deserialized
   into rclpy messages as the node receives them.

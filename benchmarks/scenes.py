@@ -17,10 +17,10 @@ a labelled object (the table, a wall, the floor, or an unlabelled thing). The re
 is a strict fit of the same table: Open3D's ``segment_plane`` (5 mm, 5000 iterations) on the
 raw points within 3 cm of the found plane, then least squares on its inliers.
 
-Rendered scenes (:func:`mvbb_ros.evaluation.synthetic.table_top_frame`: 1 to 5 objects on a table, a
-wall behind it and the floor; 640 x 480 with the depth camera's noise): objects found against
-objects placed, the table's normal against the truth, and the share of each box's volume above
-the table (sampled; a box with less than 80 % above it reaches into the table).
+Rendered scenes (:func:`mvbb_ros.evaluation.synthetic.table_top_frame`: 1 to 5 objects on a table,
+a wall behind it and the floor; 640 x 480 with the depth camera's noise): objects found against
+objects placed, the table's normal against the truth, and the share of each box's volume above the
+table (sampled; a box with less than 80 % above it reaches into the table).
 """
 
 from __future__ import annotations

@@ -1,11 +1,12 @@
 """
 `mvbb demo`: the decomposer node on a replayed stream, end to end, on the project's own data.
 
-1. Write a small bag: a synthetic table-top scene (:func:`~mvbb_ros.evaluation.synthetic.make_scene`)
-   seen by a depth camera moving on an arc around it, with sensor noise
-   (:func:`~mvbb_ros.evaluation.synthetic.scene_views`); each frame is the camera's raw view (table,
-   objects, the wall behind the table and the floor; nothing segmented) as one PointCloud2 at
-   5 Hz. The node finds the table, and up from it, itself (``support_plane: auto``).
+1. Write a small bag: a synthetic table-top scene
+   (:func:`~mvbb_ros.evaluation.synthetic.make_scene`) seen by a depth camera moving on an arc
+   around it, with sensor noise (:func:`~mvbb_ros.evaluation.synthetic.scene_views`); each frame is
+   the camera's raw view (table, objects, the wall behind the table and the floor; nothing
+   segmented) as one PointCloud2 at 5 Hz. The node finds the table, and up from it, itself
+   (``support_plane: auto``).
 2. Start the node (the ``decomposer`` executable, ``-r cloud_in:=/demo/camera/points``,
    ``input_depth:=50`` so that no frame is skipped: the input is reliable, as the player)
    as a subprocess.
@@ -38,7 +39,6 @@ from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.arrays import Float32Array
 from mvbb_ros.cli.render import Panel, render_panels
-from mvbb_ros.evaluation.camera import BACKGROUND
 from mvbb_ros.evaluation.synthetic import make_room_meshes, make_scene, Scene, scene_views
 from mvbb_ros.pipeline.decode import read_xyz
 from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 import json
 
-from support.data import load_benchmark
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mvbb_ros.evaluation.camera import orbit_pose
@@ -20,6 +19,7 @@ from mvbb_ros.evaluation.physics.views import (
 )
 import numpy as np
 import pytest
+from support.data import load_benchmark
 
 #: A box 5 x 6 x 10 cm, its own frame at its centre.
 BOX_SIZE = np.array([0.05, 0.06, 0.10])

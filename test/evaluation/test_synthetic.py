@@ -384,7 +384,7 @@ def test_organized_frame_has_about_the_requested_object_points():
 
 
 def test_default_size_frames_have_their_full_sizes():
-    """The default 640 x 480 ray cast and the 300k-point frame, at full size (timed in benchmarks)."""
+    """The default 640 x 480 ray cast and the 300k-point frame at full size (timed elsewhere)."""
     scene = make_scene(seed=0)
     pose = orbit_pose([0.0, 0.0, 0.05], 0.8, -90.0, 35.0)
     points, labels = render_depth_cloud(scene, pose)

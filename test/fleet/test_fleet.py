@@ -21,7 +21,6 @@ import sys
 import tempfile
 import time
 
-from support.data import REPO_ROOT
 from mvbb_ros.cli.demo import demo_clouds, DEMO_FRAME, DEMO_TOPIC
 from mvbb_ros.cli.main import main
 from mvbb_ros.fleet.inputs import expand_inputs, InputError, Setting, sweep_settings
@@ -31,6 +30,7 @@ from mvbb_ros.pipeline.settings import PipelineSettings, PRESETS
 from mvbb_ros.ros.bag import CloudBag, jazzy_typestore, write_cloud_bag
 import pyarrow.parquet as pq
 import pytest
+from support.data import REPO_ROOT
 
 RAY = Path(sys.executable).with_name('ray')
 #: Bags of the quick run: name -> (frames, seed, storage).

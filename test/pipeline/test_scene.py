@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from support.data import SHARED_DATA
 from hypothesis import given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
@@ -24,6 +23,7 @@ from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from support.data import SHARED_DATA
 
 SCANS = SHARED_DATA / 'scans'
 

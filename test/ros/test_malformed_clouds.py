@@ -16,7 +16,6 @@ from mvbb_ros.ros.encode import create_cloud_xyz
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from support.ros_graph import Graph
 from sensor_msgs.msg import PointCloud2, PointField
 from support.ros_graph import Graph
 from support.shapes import l_shape_points

@@ -1,10 +1,10 @@
 """
 The primitive baseline of the physics benchmark: one box per view, grasped from above.
 
-What ROS's ``simple_grasping`` does with a tabletop object, on the view's segmented cloud: fit
-the object's minimum-volume box (:func:`mvbb_ros.geometry.boxfit.fit.minimum_bounding_box`) to the cloud
-in the world frame (z up, table top z = 0), take the box axis closest to vertical as its height
-and the other two, made horizontal, as its sides. The rule (:func:`primitive_grasps`):
+What ROS's ``simple_grasping`` does with a tabletop object, on the view's segmented cloud: fit the
+object's minimum-volume box (:func:`mvbb_ros.geometry.boxfit.fit.minimum_bounding_box`) to the
+cloud in the world frame (z up, table top z = 0), take the box axis closest to vertical as its
+height and the other two, made horizontal, as its sides. The rule (:func:`primitive_grasps`):
 
 * the hand comes straight down (approach = world -z) over the box's centre;
 * it closes across the narrowest horizontal side first, then across the other side; a side

@@ -12,7 +12,6 @@ from pathlib import Path
 import subprocess
 import sys
 
-from support.data import REPO_ROOT
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mvbb_ros.evaluation.physics.contact_graspnet import (
@@ -26,6 +25,7 @@ from mvbb_ros.evaluation.physics.contact_graspnet import (
 )
 import numpy as np
 import pytest
+from support.data import REPO_ROOT
 
 CGN_PYTHON = REPO_ROOT / '.venv-cgn' / 'bin' / 'python'
 needs_venv = pytest.mark.skipif(
