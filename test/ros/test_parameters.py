@@ -227,22 +227,27 @@ def test_unknown_names_are_named_with_the_closest_and_the_known_ones():
         parse_assignments(['min_point:=3'])
 
 
-@pytest.mark.ros
-def test_misspelt_key_in_a_parameter_file_stops_the_node(tmp_path):
-    params = tmp_path / 'typo.yaml'
-    params.write_text(
-        '/**:\n  ros__parameters:\n    gain_treshold: 0.9\n    use_sim_time: false\n'
-    )
+def _start_with_params_file(params: Path) -> subprocess.CompletedProcess:
+    """Start the installed ``decomposer`` with a parameter file; return how it ended."""
     script = Path(sys.executable).parent / 'decomposer'
     if not script.exists():
         pytest.skip(f'{script} is not installed (run make test, which installs the package)')
-    result = subprocess.run(
+    return subprocess.run(
         [str(script), '--ros-args', '--params-file', str(params)],
         capture_output=True,
         text=True,
         timeout=120,
         check=False,
     )
+
+
+@pytest.mark.ros
+def test_misspelt_key_in_a_parameter_file_stops_the_node(tmp_path):
+    params = tmp_path / 'typo.yaml'
+    params.write_text(
+        '/**:\n  ros__parameters:\n    gain_treshold: 0.9\n    use_sim_time: false\n'
+    )
+    result = _start_with_params_file(params)
     output = result.stdout + result.stderr
     assert result.returncode == 1, output
     assert 'gain_treshold' in output and 'did you mean gain_threshold' in output
@@ -320,16 +325,7 @@ def test_a_parameter_file_for_another_node_name_is_named(tmp_path):
 def test_a_parameter_file_that_is_not_yaml_stops_the_node_with_one_line(tmp_path):
     params = tmp_path / 'broken.yaml'
     params.write_text('/**:\n  ros__parameters:\n    gain_threshold: [0.9\n')
-    script = Path(sys.executable).parent / 'decomposer'
-    if not script.exists():
-        pytest.skip(f'{script} is not installed (run make test, which installs the package)')
-    result = subprocess.run(
-        [str(script), '--ros-args', '--params-file', str(params)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    result = _start_with_params_file(params)
     assert result.returncode == 2, result.stderr
     assert 'decomposer: cannot start' in result.stderr and 'broken.yaml' in result.stderr
     assert 'Traceback' not in result.stdout + result.stderr
