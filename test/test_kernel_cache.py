@@ -252,6 +252,7 @@ def _run_probe(
     return (int(value), int(hits), int(misses)), completed.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('suffix', ['nbi', 'nbc'])
 def test_a_torn_cache_file_is_discarded_and_the_kernel_compiled_again(tmp_path, suffix):
     root = _probe_package(tmp_path)
@@ -267,6 +268,7 @@ def test_a_torn_cache_file_is_discarded_and_the_kernel_compiled_again(tmp_path, 
     assert _run_probe(root, home) == ((42, 1, 0), '')  # healed: the new entry loads
 
 
+@pytest.mark.slow
 def test_a_read_only_install_uses_its_shipped_cache_and_compiles_the_rest_in_memory(tmp_path):
     root = _probe_package(tmp_path)
     writable_home, read_only_home = tmp_path / 'home', root / 'home'

@@ -93,6 +93,7 @@ def test_evaluate_command_reports_bad_input(tmp_path, capsys):
     assert 'missing.ply' in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_an_output_that_cannot_be_written_is_one_line(cloud, tmp_path):
     """Not a folder (as a read-only or full disk): one line naming the path, nothing written."""
     blocker = tmp_path / 'not_a_folder'

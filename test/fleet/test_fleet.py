@@ -117,6 +117,7 @@ def fleet_run(bags, tmp_path_factory):
     return output, code, time.perf_counter() - start
 
 
+@pytest.mark.slow
 def test_outputs_are_the_bytes_of_serial_bag_process(fleet_run, serial):
     output, _, _ = fleet_run
     for name, reference in serial.items():
@@ -195,6 +196,7 @@ def test_other_settings_or_a_changed_input_do_not_resume(fleet_run, bags, tmp_pa
     assert completed_rows(make_jobs([copy], grid, output, options)[0]) is None
 
 
+@pytest.mark.slow
 def test_a_sweep_writes_one_output_per_setting_and_one_summary(bags, tmp_path):
     output = tmp_path / 'sweep'
     bag = bags['scene_sqlite']
@@ -272,6 +274,7 @@ def test_sweeps_make_a_grid_and_refuse_bad_values():
         sweep_settings(PipelineSettings(), ['gain_threshold'])
 
 
+@pytest.mark.slow
 def test_the_node_and_the_demo_do_not_load_ray():
     """Ray is the fleet's alone: the node, the bag tools and the demo never import it."""
     probe = (

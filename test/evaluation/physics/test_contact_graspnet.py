@@ -147,6 +147,7 @@ def test_bad_points_are_refused_before_any_server_starts():
     assert cgn._process is None
 
 
+@pytest.mark.slow
 def test_the_adapter_keeps_torch_out_of_the_package():
     probe = (
         'import sys, mvbb_ros.evaluation.physics.contact_graspnet; '
