@@ -19,7 +19,8 @@ staging folder (``.fleet/``), which is how the summary counts Ray's retries of a
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 import hashlib
 import json
@@ -255,6 +256,20 @@ def cloud_topic(bag: CloudBag, topics: Sequence[str]) -> str:
     return bag.select_topics(topics[0], single=True)[0]  # raises, saying what the bag has
 
 
+@contextmanager
+def _reported(outcome: Outcome) -> Iterator[Outcome]:
+    """Time a task into `outcome` and record, not raise, why it failed (the fleet goes on)."""
+    start, cpu = time.time(), time.process_time()
+    try:
+        yield outcome
+    except (BagError, OSError) as error:
+        outcome.error = str(error)
+    except Exception as error:  # a bag must not stop the fleet; the summary says why
+        outcome.error = f'{type(error).__name__}: {error}'
+    outcome.seconds = time.time() - start
+    outcome.cpu_seconds = time.process_time() - cpu
+
+
 class BagWorker:
     """
     A fleet worker (one Ray actor per worker): loads and warms the pipeline once, keeps it.
@@ -274,9 +289,7 @@ class BagWorker:
 
     def process(self, job: BagJob) -> Outcome:
         """Run `mvbb bag process` on a whole bag into ``job.output``; write its manifest."""
-        start, cpu = time.time(), time.process_time()
-        outcome = Outcome(worker=self.identity)
-        try:
+        with _reported(Outcome(worker=self.identity)) as outcome:
             outcome.attempts = _claim_attempt(job.staging, 'bag')
             rows: list[dict[str, Any]] = []
             options = dict(job.options)
@@ -292,12 +305,6 @@ class BagWorker:
             )
             write_manifest(job, rows)
             outcome.rows = rows
-        except (BagError, OSError) as error:
-            outcome.error = str(error)
-        except Exception as error:  # a bag must not stop the fleet; the summary says why
-            outcome.error = f'{type(error).__name__}: {error}'
-        outcome.seconds = time.time() - start
-        outcome.cpu_seconds = time.process_time() - cpu
         return outcome
 
     def process_range(self, job: BagJob, span: TimeRange) -> Outcome:
@@ -307,9 +314,7 @@ class BagWorker:
         The range starts from ``span.memory`` when given, else from the memory rebuilt by the
         warm-up clouds (whose outputs are dropped); both memories come back in the outcome.
         """
-        start, cpu = time.time(), time.process_time()
-        outcome = Outcome(worker=self.identity)
-        try:
+        with _reported(Outcome(worker=self.identity)) as outcome:
             task = f'range-{span.number:05d}' + ('-rerun' if span.memory is not None else '')
             outcome.attempts = _claim_attempt(job.staging, task)
             namespace = job.options.get('namespace', '/decomposer')
@@ -346,12 +351,6 @@ class BagWorker:
                 outcome.end_memory = pickle.dumps(memory)
             with atomic_open(self.part_path(job, span.number), 'wb') as handle:
                 pickle.dump(messages, handle, protocol=pickle.HIGHEST_PROTOCOL)
-        except (BagError, OSError) as error:
-            outcome.error = str(error)
-        except Exception as error:  # a bag must not stop the fleet; the summary says why
-            outcome.error = f'{type(error).__name__}: {error}'
-        outcome.seconds = time.time() - start
-        outcome.cpu_seconds = time.process_time() - cpu
         return outcome
 
     @staticmethod
@@ -361,9 +360,7 @@ class BagWorker:
 
     def assemble(self, job: BagJob, ranges: int, rows: list[dict[str, Any]]) -> Outcome:
         """Write the bag from its ranges' part files, in order, with `process_bag`'s writer."""
-        start, cpu = time.time(), time.process_time()
-        outcome = Outcome(worker=self.identity)
-        try:
+        with _reported(Outcome(worker=self.identity)) as outcome:
             outcome.attempts = _claim_attempt(job.staging, 'assemble')
             settings, options = job.settings, job.options
             with CloudBag(job.bag) as bag:
@@ -384,10 +381,4 @@ class BagWorker:
             rows = [dict(row, index=index) for index, row in enumerate(rows)]
             write_manifest(job, rows)
             outcome.rows = rows
-        except (BagError, OSError) as error:
-            outcome.error = str(error)
-        except Exception as error:  # a bag must not stop the fleet; the summary says why
-            outcome.error = f'{type(error).__name__}: {error}'
-        outcome.seconds = time.time() - start
-        outcome.cpu_seconds = time.process_time() - cpu
         return outcome
