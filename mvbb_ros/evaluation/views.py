@@ -168,7 +168,7 @@ class TableObject:
     def camera(self) -> DepthCamera:
         """Return the depth camera's world: this object (label 0) on a table (background)."""
         if self._camera is None:
-            self._camera = DepthCamera([self.mesh, _table_mesh()])
+            self._camera = DepthCamera([self.mesh, table_mesh()])
         return self._camera
 
     @property
@@ -179,7 +179,8 @@ class TableObject:
         return self._target
 
 
-def _table_mesh(size: float = 2.0, thickness: float = 0.03) -> o3d.geometry.TriangleMesh:
+def table_mesh(size: float = 2.0, thickness: float = 0.03) -> o3d.geometry.TriangleMesh:
+    """Return the table: a square slab whose top is z = 0, centred on the origin (metres)."""
     mesh = o3d.geometry.TriangleMesh.create_box(size, size, thickness)
     mesh.translate([-size / 2.0, -size / 2.0, -thickness])
     return mesh

@@ -35,6 +35,7 @@ from mvbb_ros.evaluation.camera import (
     KINECT_NOISE,
     orbit_pose,
 )
+from mvbb_ros.evaluation.views import table_mesh
 import numpy as np
 from numpy.typing import ArrayLike
 import open3d as o3d
@@ -161,13 +162,6 @@ class PlacedObject:
         """Tell which world points lie in the bounding box grown by `margin` metres."""
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         return np.all((pts >= self.low - margin) & (pts <= self.high + margin), axis=1)
-
-
-def table_mesh(size: float = 2.0, thickness: float = 0.03) -> o3d.geometry.TriangleMesh:
-    """Return the table: a square slab whose top is z = 0, centred on the origin (metres)."""
-    mesh = o3d.geometry.TriangleMesh.create_box(size, size, thickness)
-    mesh.translate([-size / 2.0, -size / 2.0, -thickness])
-    return mesh
 
 
 @dataclass(frozen=True, eq=False)
