@@ -224,9 +224,12 @@ def _is_convex(vertices: FloatArray, triangles: IndexArray) -> bool:
     tolerance = CONVEX_TOLERANCE * float(np.ptp(vertices, axis=0).max())
     centres = vertices[triangles].mean(axis=1)
     for points in (vertices, centres):
-        depth = -(points @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)
-        if np.any(depth > tolerance):
-            return False
+        for start in range(0, len(points), 4096):  # in blocks: big meshes' hulls have many facets
+            stop = start + 4096
+            block = points[start:stop]
+            depth = -(block @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)
+            if np.any(depth > tolerance):
+                return False
     return True
 
 
