@@ -439,6 +439,59 @@ def _run_demo(args: argparse.Namespace) -> int:
     )
 
 
+#: The signals that stop `mvbb bag process` and `mvbb bag play` the way Ctrl-C does.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Stopped(KeyboardInterrupt):
+    """A stop signal (SIGINT, SIGTERM or SIGHUP) arrived; `signum` says which."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+class StopSignals:
+    """
+    Make SIGINT, SIGTERM and SIGHUP stop a block the way Ctrl-C does; use it as a context manager.
+
+    The first signal raises :class:`Stopped` where the program is, so every atomic output
+    unwinds and removes its temporary folder; later signals are ignored while that clean-up
+    runs. Code that calls into libraries which may swallow an exception raised in a signal
+    handler (a finalizer, a C callback) calls :meth:`check` at safe points, which raises again.
+    The previous handlers come back after the block.
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def _stop(self, signum: int, frame: Any) -> None:
+        if self.signum is None:
+            self.signum = signum
+            raise Stopped(signum)
+
+    def check(self) -> None:
+        """Raise :class:`Stopped` when a stop signal has arrived."""
+        if self.signum is not None:
+            raise Stopped(self.signum)
+
+    def __enter__(self) -> StopSignals:
+        """Install the handlers."""
+        self._previous = {number: signal.signal(number, self._stop) for number in STOP_SIGNALS}
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        """Put the previous handlers back."""
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+
+
+def _exit_code(interrupt: KeyboardInterrupt) -> int:
+    """Return the shell's code of a process stopped by the signal (130 for Ctrl-C)."""
+    return 128 + (interrupt.signum if isinstance(interrupt, Stopped) else signal.SIGINT)
+
+
 def _bag_error(args: argparse.Namespace, error: BaseException) -> int:
     print(f'mvbb bag {args.bag_command}: error: {error}', file=sys.stderr)
     return EXIT_FAILURE
@@ -450,10 +503,7 @@ def _run_bag_play(args: argparse.Namespace) -> int:
     from mvbb_ros.ros.bag_play import play_bag
 
     stop = threading.Event()
-    previous = {
-        number: signal.signal(number, lambda *_: stop.set())
-        for number in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = {number: signal.signal(number, lambda *_: stop.set()) for number in STOP_SIGNALS}
     try:
         stats = play_bag(
             args.bag,
@@ -478,9 +528,14 @@ def _run_bag_play(args: argparse.Namespace) -> int:
     loops = f' ({stats.loops} complete loops)' if args.loop else ''
     clock = f', {stats.clock_messages} /clock messages' if args.clock else ''
     ending = 'stopped' if stats.interrupted else 'done'
+    skipped = (
+        f'; skipped {stats.skipped} messages that do not deserialize (corrupt)'
+        if stats.skipped
+        else ''
+    )
     print(
         f'{ending}: published {stats.published} clouds on {", ".join(stats.topics)}{clock} '
-        f'in {stats.seconds:.2f} s{loops}',
+        f'in {stats.seconds:.2f} s{loops}{skipped}',
         file=sys.stderr,
     )
     return EXIT_OK
@@ -497,13 +552,16 @@ def _run_bag_process(args: argparse.Namespace) -> int:
         return _bag_error(args, error)
     bar = ProgressBar(None, label='processing', enabled=args.progress)
     first: list[int] = []
+    stops = StopSignals()
 
     def start(total: int) -> None:
+        stops.check()
         bar.total = total
         if not args.quiet:
             print(TABLE_HEADER, flush=True)
 
     def report(row: Any, cloud: Any, result: Any) -> None:
+        stops.check()
         if not first:
             first.append(row.timestamp_ns)
         if not args.quiet:
@@ -513,29 +571,38 @@ def _run_bag_process(args: argparse.Namespace) -> int:
             row.index + 1, f'last: {row.boxes} boxes in {row.milliseconds:.0f} ms', force=True
         )
 
+    def skip(message: Any) -> None:
+        stops.check()
+        if not args.quiet:
+            bar.close()
+            print(f'skip {message.describe()}', flush=True)
+
     print(f'{args.input} -> {args.output}', flush=True)
-    warm_kernels()
     try:
-        summary = process_bag(
-            args.input,
-            args.output,
-            settings=settings,
-            topic=args.topic,
-            with_input=args.with_input,
-            namespace=args.namespace,
-            storage=args.storage,
-            compress=args.compress,
-            force=args.force,
-            on_start=start,
-            on_cloud=report,
-        )
+        with stops:
+            warm_kernels()
+            summary = process_bag(
+                args.input,
+                args.output,
+                settings=settings,
+                topic=args.topic,
+                with_input=args.with_input,
+                namespace=args.namespace,
+                storage=args.storage,
+                compress=args.compress,
+                force=args.force,
+                on_start=start,
+                on_cloud=report,
+                on_skip=skip,
+            )
     except BagError as error:
         bar.close()
         return _bag_error(args, error)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         bar.close()
-        print('mvbb bag process: interrupted; nothing written', file=sys.stderr)
-        return 130
+        name = interrupt.args[0] if isinstance(interrupt, Stopped) else 'SIGINT'
+        print(f'mvbb bag process: interrupted ({name}); nothing written', file=sys.stderr)
+        return _exit_code(interrupt)
     bar.close()
     for line in format_totals(summary):
         print(line)
