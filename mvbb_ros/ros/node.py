@@ -392,17 +392,20 @@ class DecomposerNode(Node):
             self._publish(cloud, None)
             return
         self._last_error = None
+        if result.units_note is not None and self._due('units'):
+            self.get_logger().warning(f"{result.units_note} (frame '{frame}')")
         if result.warning is not None:
             self._count('clouds_rejected', reprocess)
             if self._due('rejected'):
                 self.get_logger().warning(f'{result.warning}; publishing cleared outputs')
         else:
             self._count('clouds_processed', reprocess)
-            if result.notes and frame not in self._noted_frames:
+            notes = [note for note in result.notes if note != result.units_note]
+            if notes and frame not in self._noted_frames:
                 # Once per frame: a whole model or merged views are meant to be so (nothing to
                 # estimate); a wrong viewpoint needs telling once.
                 self._noted_frames.add(frame)
-                self.get_logger().warning(f"{'; '.join(result.notes)} (frame '{frame}')")
+                self.get_logger().warning(f"{'; '.join(notes)} (frame '{frame}')")
         self._last_result = result
         self._grasp_memory.remember(frame, result)
         self._publish(cloud, result)
@@ -497,7 +500,13 @@ class DecomposerNode(Node):
                 values['no_grasps_because'] = note
             if result.capped:
                 values['capped'] = '; '.join(result.capped)
-            skipped = [note for note in result.notes if note not in result.capped]
+            if result.units_note is not None:
+                values['units'] = result.units_note
+            skipped = [
+                note
+                for note in result.notes
+                if note not in result.capped and note != result.units_note
+            ]
             if skipped:
                 values['completion_skipped'] = '; '.join(skipped)
         if self._last_error is not None:
