@@ -24,6 +24,7 @@ from mvbb_ros.geometry.grasping.refinement_settings import GraspView
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
 from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
+from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.outliers import remove_statistical_outliers
@@ -77,7 +78,8 @@ class PipelineResult:
     completion and the grasps used and `up_source` where it came from (``'up_direction'``,
     ``'support plane'`` or ``'none'``). `capped` says what a frame cap left out
     (``max_objects``). `units_note` says when the cloud looks like millimetres
-    (:func:`millimetre_hint`); it never changes the result.
+    (:func:`millimetre_hint`); it never changes the result. `budget_note` says which settings
+    the frame time budget lightened for this frame (:mod:`mvbb_ros.pipeline.budget`).
     """
 
     counts: FilterCounts
@@ -92,6 +94,7 @@ class PipelineResult:
     up_source: str = 'none'
     capped: list[str] = field(default_factory=list)
     units_note: str | None = None
+    budget_note: str | None = None
 
     @property
     def leaves(self) -> list[Box]:
@@ -128,13 +131,13 @@ class PipelineResult:
     @property
     def notes(self) -> list[str]:
         """
-        Return what to read the boxes with: units, frame caps, objects without a hidden side.
+        Return what to read the boxes with: units, time budget, frame caps, completions skipped.
 
         A completion asked for but skipped (the points are not one view from the viewpoint: a
         whole model, merged views, or a cloud transformed without setting ``viewpoint``) leaves
         boxes fitted to the points as they are, carved into plates on a single view.
         """
-        units = [] if self.units_note is None else [self.units_note]
+        units = [note for note in (self.units_note, self.budget_note) if note is not None]
         skipped = [
             f'object {item.index}: shape completion skipped, {item.shape.skipped}; its boxes '
             'fit the points as they are'
@@ -582,15 +585,33 @@ def decode_cloud(cloud: Any, settings: PipelineSettings | None = None) -> Decode
 
 
 def process_cloud(
-    cloud: Any, settings: PipelineSettings, *, previous: Grasp | None = None
+    cloud: Any,
+    settings: PipelineSettings,
+    *,
+    previous: Grasp | None = None,
+    budget: FrameBudget | None = None,
 ) -> PipelineResult:
     """
     Run the whole pipeline on one `sensor_msgs/PointCloud2` (never modified).
 
     A malformed cloud gives an empty result whose `warning` says what is wrong. `previous` is
     the previous cloud's top grasp, as for :func:`process_points` (:class:`GraspMemory` keeps
-    it).
+    it). `budget` is the stream's frame time budget: the frame runs with the settings it gives
+    (lighter after frames over ``frame_time_budget``, the result's `budget_note` says how) and
+    its time is recorded in it.
     """
+    if budget is None:
+        return _process_cloud(cloud, settings, previous)
+    lighter, note = budget.settings(settings)
+    result = _process_cloud(cloud, lighter, previous)
+    result.budget_note = note
+    budget.record(result.total_ms / 1e3)
+    return result
+
+
+def _process_cloud(
+    cloud: Any, settings: PipelineSettings, previous: Grasp | None
+) -> PipelineResult:
     start = time.perf_counter()
     try:
         decoded = decode_cloud(cloud, settings)

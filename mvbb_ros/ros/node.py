@@ -39,6 +39,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from mvbb_ros.kernels import warm_up_logged
+from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import (
@@ -209,6 +210,7 @@ class DecomposerNode(Node):
         self._last_result: PipelineResult | None = None
         self._last_error: str | None = None
         self._grasp_memory = GraspMemory()  # the last top grasp, for the hysteresis
+        self._budget = FrameBudget()  # frame_time_budget: lighter settings after overruns
         self._stats = {
             'clouds_received': 0,
             'clouds_processed': 0,
@@ -379,7 +381,7 @@ class DecomposerNode(Node):
         frame = str(cloud.header.frame_id)
         try:
             previous = self._grasp_memory.previous(frame)
-            result = process_cloud(cloud, self._settings, previous=previous)
+            result = process_cloud(cloud, self._settings, previous=previous, budget=self._budget)
         except Exception as error:  # the node must survive any cloud, whatever goes wrong
             self._grasp_memory.remember(frame, None)
             self._count('clouds_failed', reprocess)
@@ -401,6 +403,9 @@ class DecomposerNode(Node):
         else:
             self._count('clouds_processed', reprocess)
             notes = [note for note in result.notes if note != result.units_note]
+            if result.budget_note is not None and self._due('budget'):
+                self.get_logger().warning(f"{result.budget_note} (frame '{frame}')")
+            notes = [note for note in notes if note != result.budget_note]
             if notes and frame not in self._noted_frames:
                 # Once per frame: a whole model or merged views are meant to be so (nothing to
                 # estimate); a wrong viewpoint needs telling once.
@@ -502,10 +507,16 @@ class DecomposerNode(Node):
                 values['capped'] = '; '.join(result.capped)
             if result.units_note is not None:
                 values['units'] = result.units_note
+            if self._budget.budget_s > 0.0:
+                values['frame_budget_level'] = self._budget.level
+                values['frame_budget'] = result.budget_note or 'within the budget'
+            if result.budget_note is not None:
+                problems.append(result.budget_note)
             skipped = [
                 note
                 for note in result.notes
-                if note not in result.capped and note != result.units_note
+                if note not in result.capped
+                and note not in (result.units_note, result.budget_note)
             ]
             if skipped:
                 values['completion_skipped'] = '; '.join(skipped)

@@ -25,6 +25,7 @@ import time
 from typing import Any
 
 from mvbb_ros.common.atomic import atomic_path
+from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
@@ -146,7 +147,10 @@ CloudCallback = Callable[[ProcessedCloud, PointCloud2, PipelineResult | None], N
 
 
 def run_pipeline(
-    cloud: PointCloud2, settings: PipelineSettings, memory: GraspMemory | None = None
+    cloud: PointCloud2,
+    settings: PipelineSettings,
+    memory: GraspMemory | None = None,
+    budget: FrameBudget | None = None,
 ) -> tuple[PipelineResult | None, str]:
     """
     Run the node's pipeline on one rclpy cloud, surviving any failure as the node does.
@@ -155,6 +159,8 @@ def run_pipeline(
     :param settings: the settings.
     :param memory: the previous cloud's top grasp (the hysteresis, as in the node), updated
         with this cloud's; None: no memory.
+    :param budget: the stream's frame time budget (``frame_time_budget``), as in the node;
+        None: none.
     :return: ``(result, note)``: the pipeline result (None when processing raised) and why the
         outputs are empty, or why there are boxes but no grasps, or the result's notes ('' when
         none); the units hint (``looks like millimetres``) comes first when there is one.
@@ -162,16 +168,16 @@ def run_pipeline(
     frame = str(cloud.header.frame_id)
     previous = None if memory is None else memory.previous(frame)
     try:
-        result = process_cloud(cloud, settings, previous=previous)
+        result = process_cloud(cloud, settings, previous=previous, budget=budget)
     except Exception as error:  # the node survives any cloud; so does the offline tool
         if memory is not None:
             memory.remember(frame, None)
         return None, f'processing failed: {type(error).__name__}: {error}'
     if memory is not None:
         memory.remember(frame, result)
-    notes = [note for note in result.notes if note != result.units_note]
+    notes = [note for note in result.notes if note not in (result.units_note, result.budget_note)]
     note = result.warning or empty_grasps_note(result, settings) or '; '.join(notes)
-    return result, '; '.join(filter(None, [result.units_note, note]))
+    return result, '; '.join(filter(None, [result.units_note, result.budget_note, note]))
 
 
 def _check_output(input_path: Path, output_path: Path, force: bool) -> None:
@@ -265,7 +271,7 @@ def process_clouds(
     :param cloud_topic: the cloud topic.
     :param settings: the settings.
     :param memory: the previous cloud's top grasp (the node's hysteresis), updated cloud after
-        cloud.
+        cloud. The frame time budget (``frame_time_budget``) starts afresh at the first cloud.
     :param start_ns: read clouds at or after this bag time (nanoseconds); None: from the start.
     :param stop_ns: read clouds before this bag time; None: to the end.
     :param first_index: the row index of the first cloud.
@@ -276,10 +282,11 @@ def process_clouds(
         result (None when processing raised).
     """
     prefix = output_prefix(namespace)
+    budget = FrameBudget()  # the node's frame time budget, cloud after cloud
     clouds = bag.clouds([cloud_topic], start_ns=start_ns, stop_ns=stop_ns, on_skip=on_skip)
     for index, item in enumerate(clouds, start=first_index):
         cloud = item.message()
-        result, note = run_pipeline(cloud, settings, memory)
+        result, note = run_pipeline(cloud, settings, memory, budget)
         messages: list[OutputMessage] = []
         if with_input:
             messages.append((cloud_topic, item.timestamp_ns, item.cdr))

@@ -224,3 +224,12 @@ def test_stop_signals_leave_nothing_behind(tmp_path, signum):
     assert process.returncode == 128 + signum, (err, _out)
     assert f'interrupted ({name}); nothing written' in err and 'Traceback' not in err, err
     assert list(results.iterdir()) == [], 'no hidden temporary folder is left'
+
+
+def test_bag_process_runs_the_frame_time_budget_as_the_node_does(tmp_path):
+    source = write_corrupt_bag(tmp_path / 'input', 'mcap')
+    settings = settings_from_mapping({**FAST, 'frame_time_budget': 1e-6})
+    summary = process_bag(source, tmp_path / 'out', settings=settings)
+    notes = [row.note for row in summary.rows]
+    assert 'frame_time_budget' not in notes[0], 'the first frame runs as set'
+    assert all(f'frame_time_budget: level {k} of 6' in n for k, n in enumerate(notes[1:], 1))
