@@ -25,6 +25,7 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.cli.options import add_settings_options, settings_from_args
+from mvbb_ros.cli.stop import exit_code, STOP_SIGNALS, StopSignals, Stopped
 from mvbb_ros.common.atomic import atomic_open
 from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.evaluation.gripper import (
@@ -439,59 +440,6 @@ def _run_demo(args: argparse.Namespace) -> int:
     )
 
 
-#: The signals that stop `mvbb bag process` and `mvbb bag play` the way Ctrl-C does.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-class Stopped(KeyboardInterrupt):
-    """A stop signal (SIGINT, SIGTERM or SIGHUP) arrived; `signum` says which."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-class StopSignals:
-    """
-    Make SIGINT, SIGTERM and SIGHUP stop a block the way Ctrl-C does; use it as a context manager.
-
-    The first signal raises :class:`Stopped` where the program is, so every atomic output
-    unwinds and removes its temporary folder; later signals are ignored while that clean-up
-    runs. Code that calls into libraries which may swallow an exception raised in a signal
-    handler (a finalizer, a C callback) calls :meth:`check` at safe points, which raises again.
-    The previous handlers come back after the block.
-    """
-
-    def __init__(self) -> None:
-        self.signum: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def _stop(self, signum: int, frame: Any) -> None:
-        if self.signum is None:
-            self.signum = signum
-            raise Stopped(signum)
-
-    def check(self) -> None:
-        """Raise :class:`Stopped` when a stop signal has arrived."""
-        if self.signum is not None:
-            raise Stopped(self.signum)
-
-    def __enter__(self) -> StopSignals:
-        """Install the handlers."""
-        self._previous = {number: signal.signal(number, self._stop) for number in STOP_SIGNALS}
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        """Put the previous handlers back."""
-        for number, handler in self._previous.items():
-            signal.signal(number, handler)
-
-
-def _exit_code(interrupt: KeyboardInterrupt) -> int:
-    """Return the shell's code of a process stopped by the signal (130 for Ctrl-C)."""
-    return 128 + (interrupt.signum if isinstance(interrupt, Stopped) else signal.SIGINT)
-
-
 def _bag_error(args: argparse.Namespace, error: BaseException) -> int:
     print(f'mvbb bag {args.bag_command}: error: {error}', file=sys.stderr)
     return EXIT_FAILURE
@@ -602,7 +550,7 @@ def _run_bag_process(args: argparse.Namespace) -> int:
         bar.close()
         name = interrupt.args[0] if isinstance(interrupt, Stopped) else 'SIGINT'
         print(f'mvbb bag process: interrupted ({name}); nothing written', file=sys.stderr)
-        return _exit_code(interrupt)
+        return exit_code(interrupt)
     bar.close()
     for line in format_totals(summary):
         print(line)
