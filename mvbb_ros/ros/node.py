@@ -394,18 +394,17 @@ class DecomposerNode(Node):
             self._publish(cloud, None)
             return
         self._last_error = None
-        if result.units_note is not None and self._due('units'):
-            self.get_logger().warning(f"{result.units_note} (frame '{frame}')")
+        # Throttled, whatever the outcome: the units hint and the time budget's lighter settings.
+        for kind, note in (('units', result.units_note), ('budget', result.budget_note)):
+            if note is not None and self._due(kind):
+                self.get_logger().warning(f"{note} (frame '{frame}')")
         if result.warning is not None:
             self._count('clouds_rejected', reprocess)
             if self._due('rejected'):
                 self.get_logger().warning(f'{result.warning}; publishing cleared outputs')
         else:
             self._count('clouds_processed', reprocess)
-            notes = [note for note in result.notes if note != result.units_note]
-            if result.budget_note is not None and self._due('budget'):
-                self.get_logger().warning(f"{result.budget_note} (frame '{frame}')")
-            notes = [note for note in notes if note != result.budget_note]
+            notes = [n for n in result.notes if n not in (result.units_note, result.budget_note)]
             if notes and frame not in self._noted_frames:
                 # Once per frame: a whole model or merged views are meant to be so (nothing to
                 # estimate); a wrong viewpoint needs telling once.
