@@ -119,6 +119,7 @@ class Case:
     :ivar make: writes the input into a folder and returns the `mvbb` arguments.
     :ivar codes: the exit codes that count as a clean end.
     :ivar heavy: takes more than a few seconds (a ``slow`` test).
+    :ivar time_limit_s: its own time limit, seconds, when longer than the default's.
     """
 
     name: str
@@ -126,6 +127,7 @@ class Case:
     make: Callable[[Path], list[str]]
     codes: tuple[int, ...] = (0,)
     heavy: bool = False
+    time_limit_s: float = 0.0
 
 
 CASES: tuple[Case, ...] = (
@@ -170,6 +172,7 @@ CASES: tuple[Case, ...] = (
             'rescore_cuts:=32',
         ],
         heavy=True,
+        time_limit_s=600.0,  # minutes of honest work: a box per point, each cut re-fitted 32 times
     ),
     Case(
         'voxel0_200k',
@@ -244,10 +247,13 @@ def run_case(
     """
     Run `case` in a child process limited to `memory_gb` of address space and `time_limit_s`.
 
+    The case's own time limit applies when it is longer.
+
     :param folder: where its input and outputs go.
     :param tree: the source tree whose code runs (put first on PYTHONPATH); None: as imported.
     """
     arguments = case.make(folder)
+    time_limit_s = max(time_limit_s, case.time_limit_s)
     limit = int(memory_gb * 2**30)
 
     def limit_memory() -> None:
