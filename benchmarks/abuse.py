@@ -225,7 +225,7 @@ class Outcome:
 
     @property
     def traceback(self) -> bool:
-        """Tell whether a Python traceback (or a MemoryError) was printed."""
+        """Tell whether the run printed a Python traceback or a MemoryError."""
         return 'Traceback (most recent call last)' in self.output or 'MemoryError' in self.output
 
     @property

@@ -25,7 +25,7 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.cli.options import add_settings_options, settings_from_args
-from mvbb_ros.cli.stop import exit_code, STOP_SIGNALS, StopSignals, Stopped
+from mvbb_ros.cli.stop import exit_code, STOP_SIGNALS, Stopped, StopSignals
 from mvbb_ros.common.atomic import atomic_open
 from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.evaluation.gripper import (
