@@ -326,6 +326,7 @@ def process_bag(
     on_start: Callable[[int], None] | None = None,
     on_cloud: CloudCallback | None = None,
     on_skip: Callable[[SkippedMessage], None] | None = None,
+    skip_corrupt: bool = True,
 ) -> ProcessSummary:
     """
     Run the node's pipeline on every cloud of a bag and write the outputs into a new rosbag2.
@@ -350,9 +351,11 @@ def process_bag(
     :param on_start: called with the number of clouds to process, before the first.
     :param on_cloud: called after each cloud (for tables, progress and pictures).
     :param on_skip: called with each skipped message, when it is skipped.
+    :param skip_corrupt: skip messages that do not deserialize; False: such a message is a
+        :class:`~mvbb_ros.ros.bag.BagError` and nothing is written (the fleet's choice).
     :return: the per-cloud rows and totals.
-    :raises BagError: for a bad input bag or topic, or an output that exists; nothing is
-        written then.
+    :raises BagError: for a bad input bag or topic, an output that exists, or (without
+        `skip_corrupt`) a message that does not deserialize; nothing is written then.
     """
     settings = settings if settings is not None else PipelineSettings()
     source, target = Path(input_path), Path(output_path)
@@ -388,7 +391,7 @@ def process_bag(
                 memory,
                 with_input=with_input,
                 namespace=namespace,
-                on_skip=skip,
+                on_skip=skip if skip_corrupt else None,
             ):
                 for message in messages:
                     out.write(*message)

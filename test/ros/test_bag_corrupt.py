@@ -233,3 +233,15 @@ def test_bag_process_runs_the_frame_time_budget_as_the_node_does(tmp_path):
     notes = [row.note for row in summary.rows]
     assert 'frame_time_budget' not in notes[0], 'the first frame runs as set'
     assert all(f'frame_time_budget: level {k} of 6' in n for k, n in enumerate(notes[1:], 1))
+
+
+def test_without_skipping_a_corrupt_message_fails_and_writes_nothing(tmp_path, corrupt_bag):
+    results = tmp_path / 'results'
+    with pytest.raises(BagError, match=f'message 2 of {TOPIC} .* does not deserialize'):
+        process_bag(
+            corrupt_bag,
+            results / 'out',
+            settings=settings_from_mapping(FAST),
+            skip_corrupt=False,
+        )
+    assert list(results.iterdir()) == [], 'the fleet fails such a bag, nothing half-written'
