@@ -172,7 +172,7 @@ CASES: tuple[Case, ...] = (
             'rescore_cuts:=32',
         ],
         heavy=True,
-        time_limit_s=900.0,  # minutes of honest work: a box per point, each cut re-fitted 32 times
+        time_limit_s=900.0,  # minutes of bounded work: thousands of boxes, 32 re-fits a cut
     ),
     Case(
         'voxel0_200k',
