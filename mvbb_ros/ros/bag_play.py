@@ -237,12 +237,12 @@ def play_bag(
                 )
                 return stats
             bar = ProgressBar(total, label='playing', stream=log, enabled=progress)
-            warnings = SkipWarnings(log)
+            skip_warnings = SkipWarnings(log)
 
             def skip(message: SkippedMessage) -> None:
                 bar.close()
-                warnings(message)
-                stats.skipped = warnings.count
+                skip_warnings(message)
+                stats.skipped = skip_warnings.count
 
             start = time.monotonic()
             try:
