@@ -3,7 +3,10 @@ Read and write point clouds as plain (N, 3) arrays: NumPy .npy, PLY and PCD file
 
 PLY and PCD go through Open3D's tensor I/O (``open3d.t.io``), which keeps float32 or float64
 coordinates as they are stored, reads PCL's ``binary_compressed`` PCD files and, for a PLY mesh,
-returns its vertices. Extra fields (colour, normals, labels) are ignored. No ROS import.
+returns its vertices. Extra fields (colour, normals, labels) are ignored. Open3D is loaded only
+for a PLY or PCD file, after a PLY header was checked against the file's size: a .npy file, or
+a PLY file that lies about its size, never loads it (Open3D alone reserves about a gigabyte of
+address space). No ROS import.
 """
 
 from __future__ import annotations
@@ -14,7 +17,6 @@ from pathlib import Path
 from mvbb_ros.common.atomic import atomic_open, atomic_path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-import open3d as o3d
 
 FloatArray = NDArray[np.float64]
 
@@ -121,6 +123,8 @@ def load_cloud(path: str | os.PathLike[str]) -> FloatArray:
     else:
         if ext == '.ply':
             check_ply_header(file)
+        import open3d as o3d  # only for PLY and PCD (see the module's docstring)
+
         cloud = o3d.t.io.read_point_cloud(str(file))
         if 'positions' not in cloud.point or len(cloud.point.positions) == 0:
             raise ValueError(f'{file}: no points read (empty, malformed or not a {ext} file)')
@@ -160,6 +164,8 @@ def save_cloud(path: str | os.PathLike[str], points: ArrayLike) -> Path:
         with atomic_open(file, 'wb') as handle:
             np.save(handle, array.astype(dtype, copy=False), allow_pickle=False)
         return file
+    import open3d as o3d  # only for PLY and PCD (see the module's docstring)
+
     cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(flat, dtype=dtype)))
     with atomic_path(file) as tmp:
         if not o3d.t.io.write_point_cloud(str(tmp), cloud, write_ascii=False):

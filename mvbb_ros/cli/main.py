@@ -25,6 +25,7 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from mvbb_ros.cli.options import add_settings_options, settings_from_args
+from mvbb_ros.cli.stop import exit_code, STOP_SIGNALS, Stopped, StopSignals
 from mvbb_ros.common.atomic import atomic_open
 from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.evaluation.gripper import (
@@ -450,10 +451,7 @@ def _run_bag_play(args: argparse.Namespace) -> int:
     from mvbb_ros.ros.bag_play import play_bag
 
     stop = threading.Event()
-    previous = {
-        number: signal.signal(number, lambda *_: stop.set())
-        for number in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = {number: signal.signal(number, lambda *_: stop.set()) for number in STOP_SIGNALS}
     try:
         stats = play_bag(
             args.bag,
@@ -478,9 +476,14 @@ def _run_bag_play(args: argparse.Namespace) -> int:
     loops = f' ({stats.loops} complete loops)' if args.loop else ''
     clock = f', {stats.clock_messages} /clock messages' if args.clock else ''
     ending = 'stopped' if stats.interrupted else 'done'
+    skipped = (
+        f'; skipped {stats.skipped} messages that do not deserialize (corrupt)'
+        if stats.skipped
+        else ''
+    )
     print(
         f'{ending}: published {stats.published} clouds on {", ".join(stats.topics)}{clock} '
-        f'in {stats.seconds:.2f} s{loops}',
+        f'in {stats.seconds:.2f} s{loops}{skipped}',
         file=sys.stderr,
     )
     return EXIT_OK
@@ -497,13 +500,16 @@ def _run_bag_process(args: argparse.Namespace) -> int:
         return _bag_error(args, error)
     bar = ProgressBar(None, label='processing', enabled=args.progress)
     first: list[int] = []
+    stops = StopSignals()
 
     def start(total: int) -> None:
+        stops.check()
         bar.total = total
         if not args.quiet:
             print(TABLE_HEADER, flush=True)
 
     def report(row: Any, cloud: Any, result: Any) -> None:
+        stops.check()
         if not first:
             first.append(row.timestamp_ns)
         if not args.quiet:
@@ -513,29 +519,38 @@ def _run_bag_process(args: argparse.Namespace) -> int:
             row.index + 1, f'last: {row.boxes} boxes in {row.milliseconds:.0f} ms', force=True
         )
 
+    def skip(message: Any) -> None:
+        stops.check()
+        if not args.quiet:
+            bar.close()
+            print(f'skip {message.describe()}', flush=True)
+
     print(f'{args.input} -> {args.output}', flush=True)
-    warm_kernels()
     try:
-        summary = process_bag(
-            args.input,
-            args.output,
-            settings=settings,
-            topic=args.topic,
-            with_input=args.with_input,
-            namespace=args.namespace,
-            storage=args.storage,
-            compress=args.compress,
-            force=args.force,
-            on_start=start,
-            on_cloud=report,
-        )
+        with stops:
+            warm_kernels()
+            summary = process_bag(
+                args.input,
+                args.output,
+                settings=settings,
+                topic=args.topic,
+                with_input=args.with_input,
+                namespace=args.namespace,
+                storage=args.storage,
+                compress=args.compress,
+                force=args.force,
+                on_start=start,
+                on_cloud=report,
+                on_skip=skip,
+            )
     except BagError as error:
         bar.close()
         return _bag_error(args, error)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         bar.close()
-        print('mvbb bag process: interrupted; nothing written', file=sys.stderr)
-        return 130
+        name = interrupt.args[0] if isinstance(interrupt, Stopped) else 'SIGINT'
+        print(f'mvbb bag process: interrupted ({name}); nothing written', file=sys.stderr)
+        return exit_code(interrupt)
     bar.close()
     for line in format_totals(summary):
         print(line)

@@ -300,6 +300,7 @@ class BagWorker:
                 job.output,
                 settings=job.settings,
                 force=True,  # an output without a manifest: a run stopped after the rename
+                skip_corrupt=False,  # as the ranges of a long bag: a corrupt message fails it
                 on_cloud=lambda row, cloud, result: rows.append(_row(row)),
                 **options,
             )

@@ -24,6 +24,7 @@ from mvbb_ros.geometry.grasping.refinement_settings import GraspView
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
 from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
+from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
 from mvbb_ros.pipeline.outliers import remove_statistical_outliers
@@ -76,7 +77,9 @@ class PipelineResult:
     cloud is one segmented object, `support_note` says why); `up` the up direction the
     completion and the grasps used and `up_source` where it came from (``'up_direction'``,
     ``'support plane'`` or ``'none'``). `capped` says what a frame cap left out
-    (``max_objects``).
+    (``max_objects``). `units_note` says when the cloud looks like millimetres
+    (:func:`millimetre_hint`); it never changes the result. `budget_note` says which settings
+    the frame time budget lightened for this frame (:mod:`mvbb_ros.pipeline.budget`).
     """
 
     counts: FilterCounts
@@ -90,6 +93,8 @@ class PipelineResult:
     up: tuple[float, float, float] | None = None
     up_source: str = 'none'
     capped: list[str] = field(default_factory=list)
+    units_note: str | None = None
+    budget_note: str | None = None
 
     @property
     def leaves(self) -> list[Box]:
@@ -126,18 +131,20 @@ class PipelineResult:
     @property
     def notes(self) -> list[str]:
         """
-        Return what to read the boxes with: frame caps, objects without a hidden side.
+        Return what to read the boxes with: units, time budget, frame caps, completions skipped.
 
         A completion asked for but skipped (the points are not one view from the viewpoint: a
         whole model, merged views, or a cloud transformed without setting ``viewpoint``) leaves
         boxes fitted to the points as they are, carved into plates on a single view.
         """
-        return self.capped + [
-            f'object {item.index}: shape completion skipped, {item.shape.skipped}; its boxes fit '
-            'the points as they are'
+        units = [note for note in (self.units_note, self.budget_note) if note is not None]
+        skipped = [
+            f'object {item.index}: shape completion skipped, {item.shape.skipped}; its boxes '
+            'fit the points as they are'
             for item in self.objects
             if item.shape.skipped is not None
         ]
+        return units + self.capped + skipped
 
     @property
     def total_ms(self) -> float:
@@ -188,6 +195,58 @@ def _empty_counts(count: int = 0) -> FilterCounts:
 #: A segmented object in metres is smaller than this along every axis (metres); a wider cloud
 #: is rejected before any filter (a voxel grid on it would not fit 64-bit indices).
 MAX_EXTENT_M = 1000.0
+#: The units hint: a cloud wider than this (metres) along some axis ...
+MM_SPAN_M = 10.0
+#: ... whose neighbouring points lie farther apart than this (metres) looks like millimetres.
+MM_SPACING_M = 0.25
+#: A cloud too wide to be one object that would span at most this (metres) in millimetres
+#: (a robot's workspace) gets the millimetres hint in its rejection.
+MM_WORKSPACE_M = 10.0
+
+
+def millimetre_hint(span: ArrayLike, spacing: float) -> str | None:
+    """
+    Return a note when a cloud looks like millimetres read as metres, else None.
+
+    The rule: wider than :data:`MM_SPAN_M` along some axis and a point spacing (median
+    neighbour distance) above :data:`MM_SPACING_M`. A graspable object in millimetres spans
+    tens to hundreds of "metres" with points about a "metre" apart; a depth camera or a laser
+    scanner in metres gives spacings of millimetres, a LiDAR scene of centimetres to a
+    decimetre. A hint only: the pipeline's answer is the same with or without it.
+
+    :param span: the cloud's extent along x, y, z (metres as given).
+    :param spacing: the median distance between neighbouring points (metres as given).
+    """
+    extent = np.asarray(span, dtype=np.float64).reshape(3)
+    if not (float(extent.max()) > MM_SPAN_M and spacing > MM_SPACING_M):
+        return None
+    spans = ' x '.join(f'{v:.3g}' for v in extent)
+    scaled = ' x '.join(f'{v / 1000.0:.3g}' for v in extent)
+    return (
+        f'looks like millimetres: the points span {spans} m and lie {spacing:.3g} m apart; '
+        f'in millimetres that is {scaled} m. Scale the cloud by 0.001 if so'
+    )
+
+
+def units_hint(points: NDArray[np.floating], bounds: ArrayLike | None = None) -> str | None:
+    """
+    Return :func:`millimetre_hint` for finite `points` (N, 3), or None.
+
+    The spacing is measured (on a sample, :func:`spacing_estimate`) only for clouds wider than
+    :data:`MM_SPAN_M`, so an object-sized cloud costs nothing here.
+
+    :param bounds: ``(2, 3)`` min and max corners of the points when known; None measures them.
+    """
+    if len(points) < 2:
+        return None
+    if bounds is None:
+        span = column_span(points).astype(np.float64)
+    else:
+        corners = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+        span = corners[1] - corners[0]
+    if not float(span.max()) > MM_SPAN_M:
+        return None
+    return millimetre_hint(span, spacing_estimate(np.asarray(points, dtype=np.float64), 0.0))
 
 
 def implausible_extent(
@@ -217,9 +276,13 @@ def implausible_extent(
     if extent.max() <= MAX_EXTENT_M:
         return None
     spans = ' x '.join(f'{v:.3g}' for v in extent)
+    hint = ''
+    if extent.max() <= MM_WORKSPACE_M * 1000.0:
+        scaled = ' x '.join(f'{v / 1000.0:.3g}' for v in extent)
+        hint = f'; looks like millimetres: in millimetres that is {scaled} m'
     return (
         f'absurd cloud: its points span {spans} m, more than {MAX_EXTENT_M:g} m; not a '
-        'segmented object in metres (random bytes, wrong units or a whole map?)'
+        f'segmented object in metres (random bytes, wrong units or a whole map?){hint}'
     )
 
 
@@ -258,6 +321,7 @@ def process_points(
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
+    units_note = units_hint(array, bounds)
     near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance)
     if near is not None:
         # The region of interest before the filters: a room-sized cloud shrinks first.
@@ -306,13 +370,21 @@ def process_points(
             f'only {len(kept)} points stand on the support plane, fewer than '
             f'min_points = {min_points}'
         )
-        return PipelineResult(counts=counts, timings_ms=timings, warning=warning, support=support)
+        return PipelineResult(
+            counts=counts,
+            timings_ms=timings,
+            warning=warning,
+            support=support,
+            units_note=units_note,
+        )
     if len(filtered) < min_points:
         warning = (
             f'only {len(filtered)} of {counts.finite} points left after filtering, fewer than '
             f'min_points = {min_points}'
         )
-        return PipelineResult(counts=counts, timings_ms=timings, warning=warning)
+        return PipelineResult(
+            counts=counts, timings_ms=timings, warning=warning, units_note=units_note
+        )
     start = time.perf_counter()
     standing = filtered if support is None else filtered[kept]
     spacing = point_spacing(standing, filtering.voxel_size)
@@ -324,6 +396,7 @@ def process_points(
 
     def empty(warning: str | None) -> PipelineResult:
         return PipelineResult(
+            units_note=units_note,
             counts=counts,
             timings_ms=timings,
             warning=warning,
@@ -512,15 +585,33 @@ def decode_cloud(cloud: Any, settings: PipelineSettings | None = None) -> Decode
 
 
 def process_cloud(
-    cloud: Any, settings: PipelineSettings, *, previous: Grasp | None = None
+    cloud: Any,
+    settings: PipelineSettings,
+    *,
+    previous: Grasp | None = None,
+    budget: FrameBudget | None = None,
 ) -> PipelineResult:
     """
     Run the whole pipeline on one `sensor_msgs/PointCloud2` (never modified).
 
     A malformed cloud gives an empty result whose `warning` says what is wrong. `previous` is
     the previous cloud's top grasp, as for :func:`process_points` (:class:`GraspMemory` keeps
-    it).
+    it). `budget` is the stream's frame time budget: the frame runs with the settings it gives
+    (lighter after frames over ``frame_time_budget``, the result's `budget_note` says how) and
+    its time is recorded in it.
     """
+    if budget is None:
+        return _process_cloud(cloud, settings, previous)
+    lighter, note = budget.settings(settings)
+    result = _process_cloud(cloud, lighter, previous)
+    result.budget_note = note
+    budget.record(result.total_ms / 1e3)
+    return result
+
+
+def _process_cloud(
+    cloud: Any, settings: PipelineSettings, previous: Grasp | None
+) -> PipelineResult:
     start = time.perf_counter()
     try:
         decoded = decode_cloud(cloud, settings)

@@ -125,12 +125,16 @@ class NodeSettings:
         ``reliable`` or ``best_effort``.
     :ivar input_depth: the input's queue (keep last `input_depth`; 1: always the newest cloud).
     :ivar stale_after: seconds without a cloud after which the diagnostics warn (0: never).
+    :ivar frame_time_budget: seconds of pipeline time per frame; after frames that took
+        longer, the next frames run with lighter settings (:mod:`mvbb_ros.pipeline.budget`);
+        0: off.
     """
 
     publish_tree: bool = True
     input_reliability: InputReliability = 'auto'
     input_depth: int = 1
     stale_after: float = 5.0
+    frame_time_budget: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -564,6 +568,15 @@ SPECS: tuple[SettingSpec, ...] = (
         'The diagnostics warn when no cloud arrived for this many seconds (wall clock); '
         '0 never warns.',
         (0.0, 86400.0),
+    ),
+    SettingSpec(
+        'frame_time_budget',
+        NodeSettings,
+        float,
+        'Seconds of pipeline time per frame; after a frame over it the next ones run lighter, '
+        'in this order: coarser voxels, fewer objects, fewer grasp candidates (the notes and '
+        'diagnostics say so). 0: off.',
+        (0.0, 3600.0),
     ),
 )
 

@@ -12,13 +12,15 @@ offline tool all see the same messages. :class:`BagWriter` writes CDR messages i
 rosbag2 (MCAP or sqlite3).
 
 Problems with the input (a missing, truncated or unreadable bag, no PointCloud2, an unknown
-topic) raise :class:`BagError` with a message meant for the user.
+topic) raise :class:`BagError` with a message meant for the user. A message the storage gives
+but that does not deserialize as a PointCloud2 (corrupt bytes) is either skipped and described
+by a :class:`SkippedMessage` (when the reader asks for that) or a :class:`BagError`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
 import functools
 import os
 from pathlib import Path
@@ -73,10 +75,36 @@ class BagCloud:
     topic: str
     timestamp_ns: int
     cdr: bytes
+    cloud: Any = field(default=None, compare=False, repr=False)
 
     def message(self) -> Any:
-        """Return the cloud as a new rclpy ``sensor_msgs.msg.PointCloud2``."""
-        return deserialize_message(self.cdr, PointCloud2)
+        """Return the cloud as an rclpy ``sensor_msgs.msg.PointCloud2`` (deserialized once)."""
+        return self.cloud if self.cloud is not None else deserialize_message(self.cdr, PointCloud2)
+
+
+@dataclass(frozen=True)
+class SkippedMessage:
+    """
+    A message of a bag that was read but does not deserialize as a PointCloud2 (corrupt bytes).
+
+    :ivar topic: its topic.
+    :ivar number: its position among the messages of `topic` that were read, from 1.
+    :ivar timestamp_ns: its bag timestamp, nanoseconds.
+    :ivar reason: what the deserializer said.
+    """
+
+    topic: str
+    number: int
+    timestamp_ns: int
+    reason: str
+
+    def describe(self) -> str:
+        """Return one line naming the message and why it was skipped."""
+        seconds, nanoseconds = divmod(self.timestamp_ns, 1_000_000_000)
+        return (
+            f'message {self.number} of {self.topic} (bag time {seconds}.{nanoseconds:09d}) '
+            f'does not deserialize as {CLOUD_TYPE}: {self.reason}'
+        )
 
 
 def ros1_cloud_to_cdr(cloud: Any) -> bytes:
@@ -226,17 +254,27 @@ class CloudBag:
         return int(self.reader.start_time), int(self.reader.end_time)
 
     def clouds(
-        self, topics: Sequence[str], *, start_ns: int | None = None, stop_ns: int | None = None
+        self,
+        topics: Sequence[str],
+        *,
+        start_ns: int | None = None,
+        stop_ns: int | None = None,
+        on_skip: Callable[[SkippedMessage], None] | None = None,
     ) -> Iterator[BagCloud]:
         """
-        Yield the clouds on `topics` in time order, as ROS 2 CDR bytes.
+        Yield the clouds on `topics` in time order, as ROS 2 CDR bytes and rclpy messages.
 
         With `start_ns` or `stop_ns`, only the clouds of bag times in ``[start_ns, stop_ns)``:
         rosbags seeks there through the bag's index (MCAP chunk index, the sqlite3 timestamp
         column, ROS 1 chunk records) rather than reading what comes before.
 
-        :raises BagError: when a message cannot be read, or when fewer messages can be read
-            than the bag's index lists (a truncated bag; checked when reading all of it).
+        Every message is deserialized here, once (the node would fail on the same bytes): one
+        that does not deserialize is passed to `on_skip` and skipped, or raises when `on_skip`
+        is None.
+
+        :raises BagError: when the storage cannot give a message, when fewer messages can be
+            read than the bag's index lists (a truncated bag; checked when reading all of it),
+            or when a message does not deserialize and `on_skip` is None.
         """
         reader = self.reader
         wanted = set(topics)
@@ -244,6 +282,7 @@ class CloudBag:
         whole = start_ns is None and stop_ns is None
         expected = self.count(topics) if whole else 0
         seen = 0
+        numbers: dict[str, int] = {}
         messages = (
             reader.messages(connections=connections, start=start_ns, stop=stop_ns)
             if connections
@@ -252,22 +291,33 @@ class CloudBag:
         while True:
             try:
                 item = next(messages, None)
-                if item is None:
-                    break
-                connection, timestamp, raw = item
-                if connection.msgtype != CLOUD_TYPE:
-                    continue
-                if reader.is2:
-                    cdr = bytes(raw)
-                else:
-                    cdr = ros1_cloud_to_cdr(reader.deserialize(raw, connection.msgtype))
-            except Exception as error:  # storage and deserialization errors alike
+            except Exception as error:  # storage errors: nothing after this can be read
                 raise BagError(
                     f'cannot read message {seen + 1} of bag {self.path} '
                     f'(truncated or corrupt?): {_describe(error)}'
                 ) from error
+            if item is None:
+                break
+            connection, timestamp, raw = item
+            if connection.msgtype != CLOUD_TYPE:
+                continue
             seen += 1
-            yield BagCloud(topic=connection.topic, timestamp_ns=int(timestamp), cdr=cdr)
+            topic = connection.topic
+            numbers[topic] = numbers.get(topic, 0) + 1
+            try:
+                if reader.is2:
+                    cdr = bytes(raw)
+                    cloud = deserialize_message(cdr, PointCloud2)
+                else:
+                    cloud = to_rclpy_cloud(reader.deserialize(raw, connection.msgtype))
+                    cdr = serialize_message(cloud)
+            except Exception as error:  # rclpy's RMWError, rosbags' errors, bad field values
+                skipped = SkippedMessage(topic, numbers[topic], int(timestamp), _describe(error))
+                if on_skip is None:
+                    raise BagError(f'bag {self.path}: {skipped.describe()}') from error
+                on_skip(skipped)
+                continue
+            yield BagCloud(topic=topic, timestamp_ns=int(timestamp), cdr=cdr, cloud=cloud)
         if seen < expected:
             raise BagError(
                 f'bag {self.path} is truncated: its index lists {expected} messages on '

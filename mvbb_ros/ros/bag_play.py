@@ -17,6 +17,10 @@ discovery and a node that is still starting), so the first clouds are not lost t
 when none comes it plays nothing and says so (:attr:`PlayStats.subscribers_found` is False).
 ``wait_for_subscribers=0`` plays at once, subscribed or not. At the end it waits (up to a few
 seconds) until reliable subscribers have acknowledged everything.
+
+A message that does not deserialize as a PointCloud2 (corrupt bytes) is not published: it is
+counted (:attr:`PlayStats.skipped`) and named in a warning, the first at once and then at most
+one warning every :data:`SKIP_WARNING_PERIOD_S` with how many more were skipped.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from typing import TextIO
 
 from builtin_interfaces.msg import Time
 from mvbb_ros.common.progress import ProgressBar
-from mvbb_ros.ros.bag import BagCloud, CloudBag
+from mvbb_ros.ros.bag import BagCloud, CloudBag, SkippedMessage
 import rclpy
 from rclpy.context import Context
 from rclpy.duration import Duration
@@ -50,6 +54,8 @@ DEFAULT_WAIT_S = 30.0
 ACK_TIMEOUT_S = 5.0
 #: Depth of the publishers' queues.
 QUEUE_DEPTH = 10
+#: At most one warning about skipped (corrupt) messages in this many seconds.
+SKIP_WARNING_PERIOD_S = 5.0
 
 
 @dataclass
@@ -65,6 +71,7 @@ class PlayStats:
     :ivar interrupted: True when stopped (SIGINT) before the end.
     :ivar subscribers_found: False when the wait for subscribers timed out (nothing was
         played then).
+    :ivar skipped: messages not published because they do not deserialize (over all loops).
     """
 
     topics: list[str]
@@ -74,6 +81,48 @@ class PlayStats:
     seconds: float = 0.0
     interrupted: bool = False
     subscribers_found: bool = True
+    skipped: int = 0
+
+
+class SkipWarnings:
+    """
+    Count skipped messages; warn about the first at once, then at most once per period.
+
+    :param log: where the warnings go.
+    :param period_s: the least time between two warnings, seconds.
+    :param clock: the time source (seconds); the tests pass their own.
+    """
+
+    def __init__(
+        self,
+        log: TextIO,
+        period_s: float = SKIP_WARNING_PERIOD_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.log = log
+        self.period_s = period_s
+        self.clock = clock
+        self.count = 0
+        self._unreported = 0
+        self._last: float | None = None
+
+    def __call__(self, message: SkippedMessage) -> None:
+        """Count `message`; print a warning when none was printed within the period."""
+        self.count += 1
+        self._unreported += 1
+        now = self.clock()
+        if self._last is not None and now - self._last < self.period_s:
+            return
+        more = (
+            f' ({self._unreported - 1} more since the last warning)'
+            if self._last is not None
+            else ''
+        )
+        print(
+            f'warning: not published: {message.describe()}{more}; {self.count} skipped so far',
+            file=self.log,
+        )
+        self._last, self._unreported = now, 0
 
 
 def wall_offset_s(timestamp_ns: int, first_ns: int, rate: float) -> float:
@@ -188,11 +237,18 @@ def play_bag(
                 )
                 return stats
             bar = ProgressBar(total, label='playing', stream=log, enabled=progress)
+            skip_warnings = SkipWarnings(log)
+
+            def skip(message: SkippedMessage) -> None:
+                bar.close()
+                skip_warnings(message)
+                stats.skipped = skip_warnings.count
+
             start = time.monotonic()
             try:
                 while not stop.is_set():
                     finished = _play_once(
-                        bag, topics, player, rate, clock_hz, stop, bar, stats, on_publish
+                        bag, topics, player, rate, clock_hz, stop, bar, stats, on_publish, skip
                     )
                     if not finished:
                         break
@@ -237,6 +293,7 @@ def _play_once(
     bar: ProgressBar,
     stats: PlayStats,
     on_publish: Callable[[BagCloud], None] | None,
+    on_skip: Callable[[SkippedMessage], None],
 ) -> bool:
     """Play the bag once; return False when stopped before the end."""
     clock_period_s = 1.0 / clock_hz
@@ -244,7 +301,7 @@ def _play_once(
     first_ns: int | None = None
     start = time.monotonic()
     next_clock = start
-    for index, cloud in enumerate(bag.clouds(topics)):
+    for index, cloud in enumerate(bag.clouds(topics, on_skip=on_skip)):
         if first_ns is None:
             first_ns = cloud.timestamp_ns
         due = start + wall_offset_s(cloud.timestamp_ns, first_ns, rate)

@@ -39,6 +39,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from mvbb_ros.kernels import warm_up_logged
+from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import (
@@ -209,6 +210,7 @@ class DecomposerNode(Node):
         self._last_result: PipelineResult | None = None
         self._last_error: str | None = None
         self._grasp_memory = GraspMemory()  # the last top grasp, for the hysteresis
+        self._budget = FrameBudget()  # frame_time_budget: lighter settings after overruns
         self._stats = {
             'clouds_received': 0,
             'clouds_processed': 0,
@@ -379,7 +381,7 @@ class DecomposerNode(Node):
         frame = str(cloud.header.frame_id)
         try:
             previous = self._grasp_memory.previous(frame)
-            result = process_cloud(cloud, self._settings, previous=previous)
+            result = process_cloud(cloud, self._settings, previous=previous, budget=self._budget)
         except Exception as error:  # the node must survive any cloud, whatever goes wrong
             self._grasp_memory.remember(frame, None)
             self._count('clouds_failed', reprocess)
@@ -392,17 +394,22 @@ class DecomposerNode(Node):
             self._publish(cloud, None)
             return
         self._last_error = None
+        # Throttled, whatever the outcome: the units hint and the time budget's lighter settings.
+        for kind, note in (('units', result.units_note), ('budget', result.budget_note)):
+            if note is not None and self._due(kind):
+                self.get_logger().warning(f"{note} (frame '{frame}')")
         if result.warning is not None:
             self._count('clouds_rejected', reprocess)
             if self._due('rejected'):
                 self.get_logger().warning(f'{result.warning}; publishing cleared outputs')
         else:
             self._count('clouds_processed', reprocess)
-            if result.notes and frame not in self._noted_frames:
+            notes = [n for n in result.notes if n not in (result.units_note, result.budget_note)]
+            if notes and frame not in self._noted_frames:
                 # Once per frame: a whole model or merged views are meant to be so (nothing to
                 # estimate); a wrong viewpoint needs telling once.
                 self._noted_frames.add(frame)
-                self.get_logger().warning(f"{'; '.join(result.notes)} (frame '{frame}')")
+                self.get_logger().warning(f"{'; '.join(notes)} (frame '{frame}')")
         self._last_result = result
         self._grasp_memory.remember(frame, result)
         self._publish(cloud, result)
@@ -497,7 +504,19 @@ class DecomposerNode(Node):
                 values['no_grasps_because'] = note
             if result.capped:
                 values['capped'] = '; '.join(result.capped)
-            skipped = [note for note in result.notes if note not in result.capped]
+            if result.units_note is not None:
+                values['units'] = result.units_note
+            if self._budget.budget_s > 0.0:
+                values['frame_budget_level'] = self._budget.level
+                values['frame_budget'] = result.budget_note or 'within the budget'
+            if result.budget_note is not None:
+                problems.append(result.budget_note)
+            skipped = [
+                note
+                for note in result.notes
+                if note not in result.capped
+                and note not in (result.units_note, result.budget_note)
+            ]
             if skipped:
                 values['completion_skipped'] = '; '.join(skipped)
         if self._last_error is not None:

@@ -6,7 +6,9 @@ writes :func:`mvbb_ros.ros.messages.output_messages` (what the node publishes) i
 rosbag2 at the input's timestamps, optionally with the input clouds, so the result plays in RViz
 (``ros2 bag play``) or Foxglove. The output is written into a temporary directory beside it and
 renamed into place only when complete (:func:`mvbb_ros.common.atomic.atomic_path`): a failure
-leaves nothing behind. :func:`format_row` and :func:`format_totals` make the table that
+leaves nothing behind. A message that does not deserialize as a PointCloud2 (corrupt bytes) is
+skipped, and listed in the summary (:attr:`ProcessSummary.skipped`); the other clouds are
+processed and written as usual. :func:`format_row` and :func:`format_totals` make the table that
 `mvbb bag process` prints.
 """
 
@@ -23,10 +25,18 @@ import time
 from typing import Any
 
 from mvbb_ros.common.atomic import atomic_path
+from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.explain import empty_grasps_note
 from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
-from mvbb_ros.ros.bag import BagError, BagWriter, CLOUD_TYPE, CloudBag, ros_type_name
+from mvbb_ros.ros.bag import (
+    BagError,
+    BagWriter,
+    CLOUD_TYPE,
+    CloudBag,
+    ros_type_name,
+    SkippedMessage,
+)
 from mvbb_ros.ros.messages import output_messages, OUTPUT_TYPES
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import PointCloud2
@@ -78,6 +88,7 @@ class ProcessSummary:
     Totals of one `mvbb bag process` run.
 
     :ivar rows: one entry per cloud, in bag order.
+    :ivar skipped: the messages skipped because they do not deserialize, in bag order.
     :ivar topics: output topic -> messages written.
     :ivar wall_seconds: wall-clock time of the whole run (reading, processing, writing).
     """
@@ -86,6 +97,7 @@ class ProcessSummary:
     output_path: Path
     input_topic: str
     rows: list[ProcessedCloud] = field(default_factory=list)
+    skipped: list[SkippedMessage] = field(default_factory=list)
     topics: dict[str, int] = field(default_factory=dict)
     wall_seconds: float = 0.0
 
@@ -135,7 +147,10 @@ CloudCallback = Callable[[ProcessedCloud, PointCloud2, PipelineResult | None], N
 
 
 def run_pipeline(
-    cloud: PointCloud2, settings: PipelineSettings, memory: GraspMemory | None = None
+    cloud: PointCloud2,
+    settings: PipelineSettings,
+    memory: GraspMemory | None = None,
+    budget: FrameBudget | None = None,
 ) -> tuple[PipelineResult | None, str]:
     """
     Run the node's pipeline on one rclpy cloud, surviving any failure as the node does.
@@ -144,21 +159,25 @@ def run_pipeline(
     :param settings: the settings.
     :param memory: the previous cloud's top grasp (the hysteresis, as in the node), updated
         with this cloud's; None: no memory.
+    :param budget: the stream's frame time budget (``frame_time_budget``), as in the node;
+        None: none.
     :return: ``(result, note)``: the pipeline result (None when processing raised) and why the
         outputs are empty, or why there are boxes but no grasps, or the result's notes ('' when
-        none).
+        none); the units hint (``looks like millimetres``) comes first when there is one.
     """
     frame = str(cloud.header.frame_id)
     previous = None if memory is None else memory.previous(frame)
     try:
-        result = process_cloud(cloud, settings, previous=previous)
+        result = process_cloud(cloud, settings, previous=previous, budget=budget)
     except Exception as error:  # the node survives any cloud; so does the offline tool
         if memory is not None:
             memory.remember(frame, None)
         return None, f'processing failed: {type(error).__name__}: {error}'
     if memory is not None:
         memory.remember(frame, result)
-    return result, result.warning or empty_grasps_note(result, settings) or '; '.join(result.notes)
+    notes = [note for note in result.notes if note not in (result.units_note, result.budget_note)]
+    note = result.warning or empty_grasps_note(result, settings) or '; '.join(notes)
+    return result, '; '.join(filter(None, [result.units_note, result.budget_note, note]))
 
 
 def _check_output(input_path: Path, output_path: Path, force: bool) -> None:
@@ -240,6 +259,7 @@ def process_clouds(
     start_ns: int | None = None,
     stop_ns: int | None = None,
     first_index: int = 0,
+    on_skip: Callable[[SkippedMessage], None] | None = None,
 ) -> Iterator[tuple[ProcessedCloud, list[OutputMessage], Any, PipelineResult | None]]:
     """
     Run the node's pipeline on the clouds of an open bag; yield each one's row and messages.
@@ -251,19 +271,22 @@ def process_clouds(
     :param cloud_topic: the cloud topic.
     :param settings: the settings.
     :param memory: the previous cloud's top grasp (the node's hysteresis), updated cloud after
-        cloud.
+        cloud. The frame time budget (``frame_time_budget``) starts afresh at the first cloud.
     :param start_ns: read clouds at or after this bag time (nanoseconds); None: from the start.
     :param stop_ns: read clouds before this bag time; None: to the end.
     :param first_index: the row index of the first cloud.
+    :param on_skip: called with each message that does not deserialize, which is then skipped;
+        None: such a message raises :class:`~mvbb_ros.ros.bag.BagError`.
     :return: ``(row, messages, cloud, result)`` per cloud: its table row, the messages to write
         in order (the input cloud first when `with_input`), the rclpy cloud and the pipeline
         result (None when processing raised).
     """
     prefix = output_prefix(namespace)
-    clouds = bag.clouds([cloud_topic], start_ns=start_ns, stop_ns=stop_ns)
+    budget = FrameBudget()  # the node's frame time budget, cloud after cloud
+    clouds = bag.clouds([cloud_topic], start_ns=start_ns, stop_ns=stop_ns, on_skip=on_skip)
     for index, item in enumerate(clouds, start=first_index):
         cloud = item.message()
-        result, note = run_pipeline(cloud, settings, memory)
+        result, note = run_pipeline(cloud, settings, memory, budget)
         messages: list[OutputMessage] = []
         if with_input:
             messages.append((cloud_topic, item.timestamp_ns, item.cdr))
@@ -302,6 +325,8 @@ def process_bag(
     force: bool = False,
     on_start: Callable[[int], None] | None = None,
     on_cloud: CloudCallback | None = None,
+    on_skip: Callable[[SkippedMessage], None] | None = None,
+    skip_corrupt: bool = True,
 ) -> ProcessSummary:
     """
     Run the node's pipeline on every cloud of a bag and write the outputs into a new rosbag2.
@@ -310,7 +335,9 @@ def process_bag(
     ``<namespace>/boxes``, ``<namespace>/tree`` (when ``publish_tree``) and
     ``<namespace>/grasps``, written at the cloud's bag timestamp and stamped with its header;
     with `with_input` the cloud itself is written first, on its own topic. Every cloud gives
-    one message per output topic, also when the outputs are cleared (bad cloud).
+    one message per output topic, also when the outputs are cleared (bad cloud). A message
+    that does not deserialize as a PointCloud2 gives no outputs: it is skipped and listed in
+    :attr:`ProcessSummary.skipped`, and the run goes on.
 
     :param input_path: any bag :class:`CloudBag` reads.
     :param output_path: the rosbag2 directory to write; written atomically.
@@ -323,9 +350,12 @@ def process_bag(
     :param force: replace an existing `output_path`.
     :param on_start: called with the number of clouds to process, before the first.
     :param on_cloud: called after each cloud (for tables, progress and pictures).
+    :param on_skip: called with each skipped message, when it is skipped.
+    :param skip_corrupt: skip messages that do not deserialize; False: such a message is a
+        :class:`~mvbb_ros.ros.bag.BagError` and nothing is written (the fleet's choice).
     :return: the per-cloud rows and totals.
-    :raises BagError: for a bad input bag or topic, or an output that exists; nothing is
-        written then.
+    :raises BagError: for a bad input bag or topic, an output that exists, or (without
+        `skip_corrupt`) a message that does not deserialize; nothing is written then.
     """
     settings = settings if settings is not None else PipelineSettings()
     source, target = Path(input_path), Path(output_path)
@@ -348,8 +378,20 @@ def process_bag(
             if on_start is not None:
                 on_start(bag.count([cloud_topic]))
             memory = GraspMemory()  # the node's hysteresis, cloud after cloud
+
+            def skip(message: SkippedMessage) -> None:
+                summary.skipped.append(message)
+                if on_skip is not None:
+                    on_skip(message)
+
             for row, messages, cloud, result in process_clouds(
-                bag, cloud_topic, settings, memory, with_input=with_input, namespace=namespace
+                bag,
+                cloud_topic,
+                settings,
+                memory,
+                with_input=with_input,
+                namespace=namespace,
+                on_skip=skip if skip_corrupt else None,
             ):
                 for message in messages:
                     out.write(*message)
@@ -379,6 +421,10 @@ def format_row(row: ProcessedCloud, start_ns: int) -> str:
     ).rstrip()
 
 
+#: The totals list at most this many skipped messages one per line (then how many more).
+MAX_SKIPPED_LINES = 20
+
+
 def format_totals(summary: ProcessSummary) -> list[str]:
     """Return the totals lines printed under the table."""
     clouds = summary.clouds
@@ -397,6 +443,15 @@ def format_totals(summary: ProcessSummary) -> list[str]:
             f'{summary.without_grasps} of {clouds} clouds gave boxes but no grasps (the note '
             'names the filter that removed them)'
         )
+    if summary.skipped:
+        lines.append(
+            f'skipped {len(summary.skipped)} messages of {summary.input_topic} that do not '
+            f'deserialize (corrupt); every other cloud was processed:'
+        )
+        shown = summary.skipped[:MAX_SKIPPED_LINES]
+        lines += [f'  {message.describe()}' for message in shown]
+        if len(summary.skipped) > len(shown):
+            lines.append(f'  ... and {len(summary.skipped) - len(shown)} more')
     written = ', '.join(f'{topic} ({count})' for topic, count in summary.topics.items())
     lines.append(f'wrote {summary.output_path}: {written}')
     return lines

@@ -115,3 +115,42 @@ def test_a_stale_input_warns():
         assert 'since the last one' in status.message
     finally:
         graph.close()
+
+
+def test_a_cloud_in_millimetres_is_named_in_the_diagnostics():
+    graph = Graph()
+    try:
+        cloud = create_cloud_xyz(l_shape_points() * 1000.0, frame_id='camera')
+        cloud.header.stamp = Time(sec=7, nanosec=0)
+        grasps = graph.publish_until_answered(graph.publisher(), cloud)
+        assert len(grasps.poses) == 0, 'the region of interest (3 m) drops a cloud in mm'
+
+        def hinted() -> bool:
+            return any('units' in _values(status) for status in _statuses(graph))
+
+        assert graph.spin_until(hinted, timeout_s=10.0)
+        status = next(s for s in reversed(_statuses(graph)) if 'units' in _values(s))
+        assert _values(status)['units'].startswith('looks like millimetres: ')
+        assert status.level == DiagnosticStatus.WARN
+    finally:
+        graph.close()
+
+
+def test_the_frame_time_budget_degrades_and_says_so():
+    graph = Graph(parameter_overrides=[Parameter('frame_time_budget', value=1e-6)])
+    try:
+        publisher = graph.publisher()
+        graph.publish_until_answered(publisher, _cloud(1))
+        graph.publish_until_answered(publisher, _cloud(2))
+
+        def degraded() -> bool:
+            return any(_values(s).get('frame_budget_level') == '2' for s in _statuses(graph))
+
+        assert graph.spin_until(degraded, timeout_s=10.0)
+        status = next(s for s in reversed(_statuses(graph)) if 'frame_budget' in _values(s))
+        assert _values(status)['frame_budget'].startswith('frame_time_budget: level 1 of 6')
+        assert 'voxel_size 0.005 -> 0.01 m' in status.message
+        assert status.level == DiagnosticStatus.WARN
+        assert graph.node.settings.filtering.voxel_size == 0.005, 'the parameter is unchanged'
+    finally:
+        graph.close()
