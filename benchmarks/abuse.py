@@ -120,6 +120,7 @@ class Case:
     :ivar codes: the exit codes that count as a clean end.
     :ivar heavy: takes more than a few seconds (a ``slow`` test).
     :ivar time_limit_s: its own time limit, seconds, when longer than the default's.
+    :ivar tested: run by ``test/robustness/test_abuse.py`` too (the longest only here).
     """
 
     name: str
@@ -128,6 +129,7 @@ class Case:
     codes: tuple[int, ...] = (0,)
     heavy: bool = False
     time_limit_s: float = 0.0
+    tested: bool = True
 
 
 CASES: tuple[Case, ...] = (
@@ -173,6 +175,24 @@ CASES: tuple[Case, ...] = (
         ],
         heavy=True,
         time_limit_s=900.0,  # minutes of bounded work: thousands of boxes, 32 re-fits a cut
+        tested=False,  # minutes: the benchmark's table only; its 10k twin is the test
+    ),
+    Case(
+        'paper_gain1_min1_rescore32_sphere10k',
+        'the same settings on a sphere of 10k points (the test of the case above)',
+        lambda folder: [
+            'decompose',
+            _npy(folder, 'sphere10k', sphere_cloud(10_000)),
+            '--preset',
+            'paper',
+            '-p',
+            'gain_threshold:=1.0',
+            '-p',
+            'min_points:=1',
+            '-p',
+            'rescore_cuts:=32',
+        ],
+        heavy=True,
     ),
     Case(
         'voxel0_200k',
