@@ -17,7 +17,7 @@ on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
@@ -414,6 +414,13 @@ def rescore_grasp(
     """
     if not models:
         return None
+    if settings.finger_length > 0.0:
+        # The described hand keeps the grasp's own depth past the first contact: another of
+        # the depths tried would move the fingertips by a centimetre or more.
+        kept_depth = max(grasp.depth - view.standoff, 1e-6)
+        settings = replace(settings, finger_depth=kept_depth, depth_fractions=(1.0,))
+    # A grasp that held may have a pad touch only at its tip in this frame's noise.
+    lenient = settings.finger_length > 0.0
     approach = np.asarray(grasp.approach, dtype=np.float64)
     closing = np.asarray(grasp.closing, dtype=np.float64)
     side = cross(approach, closing)
@@ -430,14 +437,20 @@ def rescore_grasp(
     for number, model in enumerate(models):
         if not _feasible(approach[None, :], np.array([number]), models, view)[0]:
             continue
-        rows = evaluate_lines(model, origins, approaches, closings, settings, view)
+        rows = evaluate_lines(
+            model, origins, approaches, closings, settings, view, lenient=lenient
+        )
         tips = (
             origins
             + rows[:, COL_TIP][:, None] * approaches
             + rows[:, COL_CENTER][:, None] * closings
         )
-        near = np.linalg.norm(tips - before, axis=1) <= settings.pad_size
+        moved = np.linalg.norm(tips - before, axis=1)
+        near = moved <= settings.pad_size
         quality = np.where((rows[:, COL_VALID] > 0.0) & near, rows[:, COL_QUALITY], -1.0)
+        if settings.finger_length > 0.0:
+            # The described hand keeps the one that moved least (a robot's same grasp).
+            quality = np.where(quality >= 0.0, 1.0 - moved / settings.pad_size, -1.0)
         pick = int(np.argmax(quality))
         if quality[pick] >= 0.0 and (best is None or quality[pick] > best[0]):
             best = (float(quality[pick]), number, pick, rows[pick])
