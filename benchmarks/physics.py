@@ -58,7 +58,7 @@ DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 
 #: Grasps tried per view and contender ("one of the top five").
 TOP_K = 5
 #: Every contender, in table order.
-CONTENDERS = ('node', 'paper', 'primitive', 'cgn')
+CONTENDERS = ('node', 'node_scene', 'paper', 'primitive', 'cgn')
 #: The object sets by name (``--meshes DIR`` adds one named after the folder).
 SETS = ('development', 'validation', 'shared')
 #: Quick mode: objects per random set and views per object (about 100 views).
@@ -84,37 +84,70 @@ def fingertip_pose(grasp: Any) -> Any:
     return grasp_matrix(tip, approach, grasp.closing)
 
 
-def pipeline_settings(preset: str, opening: float, up: Sequence[float] | None):
-    """Return a preset's settings with the hand's opening (and the up direction when given)."""
+def hand_parameters(hand: Any) -> dict[str, float]:
+    """Return the node parameters that describe `hand` (its opening, fingers and palm)."""
+    return {
+        'gripper_max_width': float(hand.max_opening),
+        'finger_length': float(hand.finger_depth),
+        'finger_pad_size': float(hand.pad_width),
+        'finger_thickness': float(hand.finger_thickness),
+        'palm_width': float(hand.palm_width),
+        'palm_depth': float(hand.palm_depth),
+        'palm_height': float(hand.palm_height),
+    }
+
+
+def pipeline_settings(preset: str, hand: Any, up: Sequence[float] | None):
+    """
+    Return a preset's settings for `hand` (and the up direction when given).
+
+    The node is told the whole hand (:func:`hand_parameters`); the paper only its opening.
+    """
     from mvbb_ros.pipeline.settings import PRESETS
 
-    changes: dict[str, Any] = {'gripper_max_width': float(opening)}
+    changes: dict[str, Any] = {'gripper_max_width': float(hand.max_opening)}
+    if preset == 'node':
+        changes.update(hand_parameters(hand))
     if up is not None:
         changes['up_direction'] = [float(v) for v in up]
     return PRESETS[preset].updated(changes)
 
 
-def node_grasps(view: Any, opening: float) -> list[Any]:
+def node_grasps(view: Any, hand: Any) -> list[Any]:
     """Run the node (defaults, the view's up direction); return world-frame poses, best first."""
     from mvbb_ros.pipeline.process import process_points
 
-    result = process_points(view.points, pipeline_settings('node', opening, view.up))
+    result = process_points(view.points, pipeline_settings('node', hand, view.up))
     return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
 
 
-def paper_grasps(view: Any, opening: float) -> list[Any]:
+def scene_grasps(view: Any, hand: Any) -> list[Any]:
+    """
+    Run the node on the raw scene (the object and the table around it); world poses.
+
+    The node's scene stage finds the table (``support_plane: auto``), keeps what stands on it
+    and takes the up direction and the floor under the object from it; ``up_direction`` is
+    still given, as for ``node``.
+    """
+    from mvbb_ros.pipeline.process import process_points
+
+    result = process_points(view.scene_points, pipeline_settings('node', hand, view.up))
+    return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
+
+
+def paper_grasps(view: Any, hand: Any) -> list[Any]:
     """Return the paper's face-centre grasps (paper preset, no up), world frame, best first."""
     from mvbb_ros.pipeline.process import process_points
 
-    result = process_points(view.points, pipeline_settings('paper', opening, None))
+    result = process_points(view.points, pipeline_settings('paper', hand, None))
     return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
 
 
-def primitive_contender(view: Any, opening: float) -> list[Any]:
+def primitive_contender(view: Any, hand: Any) -> list[Any]:
     """Return the box grasped from above across its narrowest side, world frame, best first."""
     from mvbb_ros.evaluation.physics.primitive import primitive_grasps
 
-    return primitive_grasps(view.to_world(view.points), opening)
+    return primitive_grasps(view.to_world(view.points), hand_opening(hand))
 
 
 class CgnContender:
@@ -138,7 +171,7 @@ class CgnContender:
         except ContactGraspNetUnavailable as error:
             self.unavailable = str(error)
 
-    def __call__(self, view: Any, opening: float) -> list[Any]:
+    def __call__(self, view: Any, hand: Any) -> list[Any]:
         """Propose grasps on the view's z-up world-frame scene: world poses, best first."""
         proposals = self._net.grasps(
             view.to_world(view.scene_points).astype('float32'),
@@ -151,9 +184,55 @@ class CgnContender:
         self._stack.close()
 
 
-#: Contender name -> function (view, opening) -> world-frame 4x4 poses, best first.
-PROPOSERS: dict[str, Callable[[Any, float], list[Any]]] = {
+def node_steadiness(view: Any, hand: Any, frames: int, drift: float) -> tuple[int, int]:
+    """
+    Count the node's steady frame pairs on the same view rendered again with fresh noise.
+
+    The frames (:func:`mvbb_ros.evaluation.physics.views.view_frames`) go through the node one
+    after the other, each given the previous frame's top grasp (the node's hysteresis), moved
+    into its camera frame when the camera drifts; a pair is steady when both top grasps, in
+    the world frame, are the same to a robot (:func:`mvbb_ros.evaluation.grasp_judge.same_grasp`:
+    1 cm, 15 degrees). Returns ``(steady pairs, pairs)``.
+    """
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from mvbb_ros.evaluation.grasp_judge import steady_pairs
+    from mvbb_ros.evaluation.physics.views import invert_pose, view_frames
+    from mvbb_ros.pipeline.process import process_points
+    import numpy as np
+
+    tops: list[Any] = []
+    previous = None
+    last_pose = None
+    for frame in view_frames(view, frames, drift=drift):
+        if previous is not None and last_pose is not None:
+            move = invert_pose(frame.camera_pose) @ last_pose  # previous camera -> this camera
+            rotation, shift = move[:3, :3], move[:3, 3]
+            previous = replace(
+                previous,
+                position=rotation @ np.asarray(previous.position) + shift,
+                approach=rotation @ np.asarray(previous.approach),
+                closing=rotation @ np.asarray(previous.closing),
+            )
+        settings = pipeline_settings('node', hand, frame.up)
+        result = process_points(frame.points, settings, previous=previous)
+        previous = result.grasps[0] if result.grasps else None
+        last_pose = frame.camera_pose
+        if previous is None:
+            tops.append(None)
+            continue
+        pose = frame.poses_to_world(fingertip_pose(previous))
+        tops.append(
+            SimpleNamespace(position=pose[:3, 3], approach=pose[:3, 2], closing=pose[:3, 1])
+        )
+    return steady_pairs(tops)
+
+
+#: Contender name -> function (view, hand) -> world-frame 4x4 poses, best first.
+PROPOSERS: dict[str, Callable[[Any, Any], list[Any]]] = {
     'node': node_grasps,
+    'node_scene': scene_grasps,
     'paper': paper_grasps,
     'primitive': primitive_contender,
 }
@@ -203,12 +282,13 @@ class Results:
     views: list[dict[str, Any]] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
     failures: list[dict[str, Any]] = field(default_factory=list)
+    steadiness: list[dict[str, Any]] = field(default_factory=list)
 
 
 def try_view(
     view: Any,
     set_name: str,
-    proposers: Mapping[str, Callable[[Any, float], list[Any]]],
+    proposers: Mapping[str, Callable[[Any, Any], list[Any]]],
     hand: Any,
     trial_settings: Any,
     target: Any,
@@ -222,7 +302,7 @@ def try_view(
     opening = hand_opening(hand)
     for name, propose in proposers.items():
         start = time.perf_counter()
-        proposed = [np.asarray(p, dtype=np.float64) for p in propose(view, opening)]
+        proposed = [np.asarray(p, dtype=np.float64) for p in propose(view, hand)]
         poses = proposed[:TOP_K]
         seconds = time.perf_counter() - start
         start = time.perf_counter()
@@ -292,12 +372,14 @@ def hand_opening(hand: Any) -> float:
 
 def run(
     sets: Iterable[tuple[str, list[Any]]],
-    proposers: Mapping[str, Callable[[Any, float], list[Any]]],
+    proposers: Mapping[str, Callable[[Any, Any], list[Any]]],
     hand: Any,
     views_per_object: int,
     seed: int,
     *,
     judge: bool = True,
+    steady_frames: int = 0,
+    drift: float = 0.0,
     trial_settings: Any = None,
     log: Callable[[str], None] = print,
     checkpoint: Callable[[Results], None] | None = None,
@@ -316,6 +398,12 @@ def run(
             views = 0
             for view in physics_views(placed, views_per_object, seed=seed):
                 try_view(view, set_name, proposers, hand, trial_settings, target, results)
+                if steady_frames > 1 and 'node' in proposers:
+                    same, pairs = node_steadiness(view, hand, steady_frames, drift)
+                    results.steadiness.append(
+                        {'set': set_name, 'object': placed.name, 'view': view.index}
+                        | {'steady': same, 'pairs': pairs}
+                    )
                 views += 1
             log(
                 f'  {set_name} {number + 1}/{len(objects)} {placed.name}: {views} views, '
@@ -486,9 +574,24 @@ def report(results: Results, contenders: Sequence[str], meta: Mapping[str, Any])
             for name in [*contenders, 'all']
         },
         'skipped': results.skipped,
+        'steadiness': steadiness_summary(results.steadiness),
         'views': views,
         'records': results.records,
     }
+
+
+def steadiness_summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Return the node's steady share of frame pairs per set, with its Wilson interval."""
+    out: dict[str, Any] = {}
+    for set_name in dict.fromkeys(r['set'] for r in rows):
+        same = sum(r['steady'] for r in rows if r['set'] == set_name)
+        pairs = sum(r['pairs'] for r in rows if r['set'] == set_name)
+        out[set_name] = {
+            'steady': same / pairs if pairs else None,
+            'steady_ci': list(wilson(same, pairs)),
+            'pairs': pairs,
+        }
+    return out
 
 
 def write_json(path: Path, data: Mapping[str, Any]) -> None:
@@ -628,6 +731,20 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         '--quick', action='store_true', help=f'{QUICK_OBJECTS} objects x {QUICK_VIEWS} views a set'
     )
     parser.add_argument('--no-judge', action='store_true', help='skip the analytic judge')
+    parser.add_argument(
+        '--steadiness',
+        type=int,
+        default=0,
+        metavar='FRAMES',
+        help="the node's steadiness over this many frames of each view (fresh noise; 0: off)",
+    )
+    parser.add_argument(
+        '--drift',
+        type=float,
+        default=0.0,
+        metavar='METRES',
+        help='with --steadiness: the camera moves this far sideways each frame',
+    )
     parser.add_argument('--json', type=Path, default=None, metavar='OUT')
     parser.add_argument(
         '--pictures',
@@ -681,7 +798,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f'hand {args.hand} ({100 * hand_opening(hand):.0f} cm); seed {args.seed}; '
         f'contenders {", ".join(args.contenders)}'
     )
-    proposers: dict[str, Callable[[Any, float], list[Any]]] = {}
+    proposers: dict[str, Callable[[Any, Any], list[Any]]] = {}
     skipped: dict[str, str] = {}
     cgn: CgnContender | None = None
     for name in args.contenders:
@@ -720,6 +837,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.views,
             args.seed,
             judge=not args.no_judge,
+            steady_frames=args.steadiness,
+            drift=args.drift,
             log=lambda message: print(message, file=sys.stderr, flush=True),
             checkpoint=checkpoint,
         )
@@ -738,6 +857,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         disagreements = judge_agreement(results.records)['disagreements']
         if disagreements:
             print('disagreements: ' + ', '.join(f'{k}: {v}' for k, v in disagreements.items()))
+    for set_name, row in steadiness_summary(results.steadiness).items():
+        print(
+            f'\nsteadiness ({set_name}, node, {args.steadiness} frames, drift '
+            f'{1000 * args.drift:.1f} mm a frame): {_share(row["steady"], row["steady_ci"])} '
+            f'of {row["pairs"]} frame pairs'
+        )
     print(f'\n{meta["seconds"]:.0f} s')
     if args.json is not None:
         write_json(args.json, report(results, names, meta))

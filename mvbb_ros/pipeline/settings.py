@@ -504,6 +504,49 @@ SPECS: tuple[SettingSpec, ...] = (
         (1e-4, 1.0),
     ),
     SettingSpec(
+        'finger_length',
+        RefinementSettings,
+        float,
+        'Length of the finger pads along the approach, metres: the palm is this far behind '
+        'the fingertips. 0: finger_pad_size (no palm).',
+        (0.0, 1.0),
+        node_default=0.054,
+    ),
+    SettingSpec(
+        'finger_thickness',
+        RefinementSettings,
+        float,
+        'Thickness of each finger outside the opening, metres: the open fingers must clear '
+        'the support.',
+        (0.0, 1.0),
+        node_default=0.012,
+    ),
+    SettingSpec(
+        'palm_width',
+        RefinementSettings,
+        float,
+        'Width of the palm along the closing direction, metres: no point may stand in front '
+        'of it closer than finger_length. 0: no palm.',
+        (0.0, 2.0),
+        node_default=0.204,
+    ),
+    SettingSpec(
+        'palm_depth',
+        RefinementSettings,
+        float,
+        'Depth of the palm across the closing direction, metres.',
+        (0.0, 2.0),
+        node_default=0.063,
+    ),
+    SettingSpec(
+        'palm_height',
+        RefinementSettings,
+        float,
+        'Height of the palm along the approach, behind the fingers, metres.',
+        (0.0, 2.0),
+        node_default=0.06,
+    ),
+    SettingSpec(
         'grasp_width_margin',
         RefinementSettings,
         float,

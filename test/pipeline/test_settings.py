@@ -25,7 +25,12 @@ from mvbb_ros.pipeline.settings import (
     STAGES,
     ViewSettings,
 )
-from mvbb_ros.pipeline.settings_text import config_files, format_assignment, parse_assignments
+from mvbb_ros.pipeline.settings_text import (
+    config_files,
+    format_assignment,
+    parse_assignments,
+    read_params_file,
+)
 import numpy as np
 import pytest
 from support.data import REPO_ROOT
@@ -191,3 +196,23 @@ def test_decompose_with_the_paper_preset_writes_the_papers_boxes(tmp_path, mug):
     assert len(document['grasps']) == len(grasp_hypotheses(decomposition))
     assert document['parameters'] == PipelineSettings.paper().parameters()
     assert document['filter_counts']['finite'] == document['filter_counts']['inliers'] == len(mug)
+
+
+@pytest.mark.parametrize('name', ['gripper_franka_hand.yaml', 'gripper_robotiq_2f85.yaml'])
+def test_the_gripper_files_describe_a_hand_the_settings_accept(name):
+    """Each hand's parameter file loads into the node's settings and sets the whole hand."""
+    values = read_params_file(REPO_ROOT / 'config' / name)
+    hand = {
+        'gripper_max_width',
+        'finger_length',
+        'finger_pad_size',
+        'finger_thickness',
+        'palm_width',
+        'palm_depth',
+        'palm_height',
+    }
+    assert set(values) == hand
+    settings = PipelineSettings().updated(values)
+    assert settings.refinement.palm_width == values['palm_width']
+    assert settings.grasps.gripper_max_width == values['gripper_max_width']
+    assert values['palm_width'] >= values['gripper_max_width'] + 2 * values['finger_thickness']

@@ -279,6 +279,38 @@ def physics_views(
         index += 1
 
 
+def view_frames(
+    view: PhysicsView,
+    count: int,
+    *,
+    drift: float = 0.0,
+    noise: DepthNoise | None = KINECT_NOISE,
+) -> Iterator[PhysicsView]:
+    """
+    Render the same view `count` times again, each with fresh sensor noise: a static scene.
+
+    With `drift` (metres per frame), frame k's camera is moved k * `drift` along its image's x
+    axis, so the object drifts slowly across the image as a slowly moving object would (the
+    grasps, in the world frame, should stay where they were). Frame 0 is the view's own pose.
+    """
+    for frame in range(count):
+        pose = np.array(view.camera_pose, dtype=np.float64)
+        pose[:3, 3] += frame * drift * pose[:3, 0]
+        frame_seed = stable_seed(view.placed.name, view.seed, 'frame', frame)
+        points, scene = _render(view.placed, pose, noise, frame_seed)
+        yield PhysicsView(
+            view.placed,
+            view.index,
+            points,
+            scene,
+            pose,
+            view.elevation_deg,
+            view.azimuth_deg,
+            view.distance,
+            frame_seed,
+        )
+
+
 def wilson_interval(
     successes: int, trials: int, z: float = 1.959963984540054
 ) -> tuple[float, float]:

@@ -25,6 +25,9 @@ import numpy as np
 WEIGHT_MARGIN = 0.5
 WEIGHT_SUPPORT = 0.3
 WEIGHT_CLEARANCE = 0.2
+#: With the hand's fingers known (``finger_length``), how deep the pads reach over the object
+#: counts too: the weights then (margin, support, clearance, coverage; they sum to 1).
+HAND_WEIGHTS = (0.35, 0.2, 0.15, 0.3)
 #: Finger clearance counts fully from this many pad sizes on.
 CLEARANCE_PADS = 0.5
 #: A pad's contact patch: points within this many grid cells of its first touch.
@@ -48,7 +51,8 @@ SUPPORT_CELLS = 1.5
     COL_DEPTH,
 ) = range(11)
 COL_CONTACTS = 11  # 11..16: the two contacts (the pad on +closing first)
-EVALUATION_COLUMNS = 17
+COL_COVERAGE = 17
+EVALUATION_COLUMNS = 18
 
 #: Entries of the kernel's parameter vector.
 (
@@ -68,8 +72,24 @@ EVALUATION_COLUMNS = 17
     P_W_SUPPORT,
     P_W_CLEARANCE,
     P_REACH_SLACK,
-) = range(16)
-PARAMETER_COUNT = 16
+    P_LENGTH,
+    P_THICKNESS,
+    P_PALM_HALF_DEPTH,
+    P_PALM_HALF_WIDTH,
+    P_PALM_HEIGHT,
+    P_PALM_MARGIN,
+    P_MIN_DEPTH,
+    P_BEYOND,
+    P_W_COVERAGE,
+    P_TIP_CLEAR,
+) = range(26)
+PARAMETER_COUNT = 26
+#: The palm stays this far (metres) behind the nearest point in front of it.
+PALM_MARGIN = 0.004
+#: Points this many grid cells past the fingertips tell whether a pad lies flat on the object.
+BEYOND_CELLS = 1.5
+#: A depth cut short by the palm or the support must keep this share of the shallowest depth.
+MIN_DEPTH_SHARE = 0.5
 
 
 #: :func:`_place_hand`'s outcomes: placed; no contact within the opening (the depth is skipped);
@@ -189,9 +209,11 @@ def _evaluate(
     contact = np.empty(6)
     normal = np.empty(6)
     patch = np.empty(2)
+    shallowest = np.empty(2)
     support = np.empty(2)
     half = params[P_HALF]
     pad = params[P_PAD]
+    finger = params[P_LENGTH]
     cone = params[P_CONE]
     inf = math.inf
     for i in range(origins.shape[0]):
@@ -201,9 +223,26 @@ def _evaluate(
         s0 = a[1] * c[2] - a[2] * c[1]
         s1 = a[2] * c[0] - a[0] * c[2]
         s2 = a[0] * c[1] - a[1] * c[0]
-        # The distances across first (a loop the compiler vectorizes), then the band.
-        for k in range(count):
-            across[k] = (xs[k] - o[0]) * s0 + (ys[k] - o[1]) * s1 + (zs[k] - o[2]) * s2
+        # The distances across first (a loop the compiler vectorizes), then the band; with a
+        # palm, the nearest point in front of it in the same loop (it stops the fingertips at
+        # most the fingers' length past that point).
+        palm_first = inf
+        if params[P_PALM_HALF_WIDTH] > 0.0:
+            palm_x = params[P_PALM_HALF_DEPTH]
+            palm_y = params[P_PALM_HALF_WIDTH]
+            for k in range(count):
+                dx = xs[k] - o[0]
+                dy = ys[k] - o[1]
+                dz = zs[k] - o[2]
+                side = dx * s0 + dy * s1 + dz * s2
+                along = dx * a[0] + dy * a[1] + dz * a[2]
+                closing = dx * c[0] + dy * c[1] + dz * c[2]
+                across[k] = side
+                in_front = abs(side) <= palm_x and abs(closing) <= palm_y
+                palm_first = min(palm_first, along if in_front else inf)
+        else:
+            for k in range(count):
+                across[k] = (xs[k] - o[0]) * s0 + (ys[k] - o[1]) * s1 + (zs[k] - o[2]) * s2
         # The band, and the first contact of a hand centred on the line (the same for every
         # finger depth).
         # Compactions here go without branches (a branch on where a point lies mispredicts:
@@ -213,6 +252,7 @@ def _evaluate(
         for k in range(count):
             band_k[n] = k
             n += abs(across[k]) <= pad / 2.0
+        tip_palm = palm_first + params[P_LENGTH] - params[P_PALM_MARGIN]
         first_centred = inf
         for j in range(n):
             k = band_k[j]
@@ -236,17 +276,57 @@ def _evaluate(
             near_v[m] = band_v[j]
             near_k[m] = band_k[j]
             m += band_u[j] <= reach
-        best = -1.0
+        best = -inf
+        last_tip = inf
+        cu = c[0] * up[0] + c[1] * up[1] + c[2] * up[2]
+        su = s0 * up[0] + s1 * up[1] + s2 * up[2]
+        au = a[0] * up[0] + a[1] * up[1] + a[2] * up[2]
+        # The hand's lowest point below its fingertips' centre (along up): the open fingers
+        # and the palm behind them.
+        finger_low = -(half + params[P_THICKNESS]) * abs(cu) - pad / 2.0 * abs(su)
+        finger_low += min(0.0, -finger * au)
+        lowest = finger_low
+        if params[P_PALM_HALF_WIDTH] > 0.0:
+            palm_low = -params[P_PALM_HALF_WIDTH] * abs(cu) - params[P_PALM_HALF_DEPTH] * abs(su)
+            palm_low += min(-finger * au, -(finger + params[P_PALM_HEIGHT]) * au)
+            lowest = min(lowest, palm_low)
         for di in range(depths.shape[0]):
             depth = depths[di]
+            placed = (HAND_MISSED, inf, inf, 0.0, inf, -inf, inf, -inf)
             used_u, used_v, used_k, used = near_u, near_v, near_k, m
-            placed = _place_hand(used_u, used_v, used, first_centred, depth, half, pad, reach)
-            if placed[0] == HAND_BEYOND_REACH:
-                used_u, used_v, used_k, used = band_u, band_v, band_k, n
-                placed = _place_hand(used_u, used_v, used, first_centred, depth, half, pad, inf)
+            # Placed at this depth, then as deep as the palm and the support allow (twice).
+            for _attempt in range(3):
+                used_u, used_v, used_k, used = near_u, near_v, near_k, m
+                placed = _place_hand(
+                    used_u, used_v, used, first_centred, depth, half, finger, reach
+                )
+                if placed[0] == HAND_BEYOND_REACH:
+                    used_u, used_v, used_k, used = band_u, band_v, band_k, n
+                    placed = _place_hand(
+                        used_u, used_v, used, first_centred, depth, half, finger, inf
+                    )
+                if placed[0] != HAND_PLACED:
+                    break
+                limit = tip_palm
+                if params[P_FLOOR] > -inf and au < -1e-9:
+                    base = (o[0] + placed[3] * c[0]) * up[0]
+                    base += (o[1] + placed[3] * c[1]) * up[1]
+                    base += (o[2] + placed[3] * c[2]) * up[2]
+                    floor = params[P_FLOOR] + params[P_SUPPORT_CLEARANCE]
+                    limit = min(limit, (floor - base - lowest) / au)
+                excess = placed[2] - limit
+                if excess <= 1e-9:
+                    break
+                depth -= excess
+                if depth < params[P_MIN_DEPTH]:
+                    placed = (HAND_MISSED, inf, inf, 0.0, inf, -inf, inf, -inf)
+                    break
             status, first, tip, center, low, high, pad_low, pad_high = placed
-            if status != HAND_PLACED:
+            if status != HAND_PLACED or placed[2] - 1e-9 > limit:
                 continue
+            if abs(tip - last_tip) <= 1e-9:
+                continue  # clamped to the same tip as the previous depth
+            last_tip = tip
             # The fingers pass everything they reach with clearance (else they collide).
             clearance = half - max(high - center, center - low)
             if clearance < params[P_MIN_CLEAR]:
@@ -255,6 +335,7 @@ def _evaluate(
             if pad_high - pad_low < params[P_MIN_WIDTH]:
                 continue
             contact[:] = 0.0
+            shallowest[:] = inf
             normal[:] = 0.0
             patch[:] = 0.0
             support[:] = 0.0
@@ -263,7 +344,7 @@ def _evaluate(
             for j in range(used):
                 u = used_u[j]
                 window[reached] = j
-                reached += u >= tip - pad and u <= tip
+                reached += u >= tip - finger and u <= tip
             for q in range(reached):
                 j = window[q]
                 v = used_v[j]
@@ -281,8 +362,33 @@ def _evaluate(
                         contact[3 * side + axis] += points[k, axis]
                         normal[3 * side + axis] += flip * normals[k, axis] * sign
                     patch[side] += 1.0
+                    shallowest[side] = min(shallowest[side], used_u[j])
             for axis in range(6):
                 contact[axis] /= patch[axis // 3]
+            # A pad that touches where the object is widest within its reach (nothing just
+            # past the fingertips stands out further on its side) lies flat on it: the contact
+            # normal is the pad's, whatever the estimated normals of an edge say. A pad whose
+            # tip touches the slope of a bulge beyond it pushes along the surface's normal.
+            beyond_low = inf
+            beyond_high = -inf
+            bottom = first
+            for j in range(n):
+                u = band_u[j]
+                outside = u > tip and u <= tip + params[P_BEYOND]
+                beyond_low = min(beyond_low, band_v[j] if outside else inf)
+                beyond_high = max(beyond_high, band_v[j] if outside else -inf)
+                between = abs(band_v[j] - center) <= half
+                bottom = max(bottom, u if between else first)
+            # Only where the pad touches above its tip: a touch at the tip alone may be the
+            # slope of a bulge the view does not show.
+            if params[P_BEYOND] > 0.0:
+                above = tip - params[P_TIP_CLEAR]
+                if beyond_high <= pad_high + params[P_TOLERANCE] and shallowest[0] <= above:
+                    for axis in range(3):
+                        normal[axis] = c[axis]
+                if beyond_low >= pad_low - params[P_TOLERANCE] and shallowest[1] <= above:
+                    for axis in range(3):
+                        normal[3 + axis] = -c[axis]
             # The contact line from the - pad's contact to the + pad's.
             lx = contact[0] - contact[3]
             ly = contact[1] - contact[4]
@@ -306,23 +412,24 @@ def _evaluate(
                 continue
             # The support: pads above the floor at the pre-grasp and the final pose.
             if params[P_FLOOR] > -inf:
-                cu = c[0] * up[0] + c[1] * up[1] + c[2] * up[2]
-                su = s0 * up[0] + s1 * up[1] + s2 * up[2]
-                au = a[0] * up[0] + a[1] * up[1] + a[2] * up[2]
                 tip_height = (o[0] + tip * a[0] + center * c[0]) * up[0]
                 tip_height += (o[1] + tip * a[1] + center * c[1]) * up[1]
                 tip_height += (o[2] + tip * a[2] + center * c[2]) * up[2]
-                lowest = -half * abs(cu) - pad / 2.0 * abs(su) + min(0.0, -pad * au)
                 final = tip_height + lowest
                 before = final - (tip - first + params[P_STANDOFF]) * au
                 if min(final, before) < params[P_FLOOR] + params[P_SUPPORT_CLEARANCE]:
                     continue
             margin = 1.0 - worst / cone if cone > 0.0 else 0.0
             held = min(support[0], support[1]) / params[P_EXPECTED]
+            # Coverage: the share of the object between the fingers (along the approach, up to
+            # the fingers' reach) that the pads go down over.
+            span = min(bottom - first, finger - params[P_PALM_MARGIN])
+            coverage = min(1.0, (tip - first) / span) if span > 1e-12 else 1.0
             quality = (
                 params[P_W_MARGIN] * margin
                 + params[P_W_SUPPORT] * min(1.0, held)
                 + params[P_W_CLEARANCE] * min(1.0, clearance / params[P_CLEAR_REF])
+                + params[P_W_COVERAGE] * coverage
             )
             if quality <= best:
                 continue
@@ -341,11 +448,16 @@ def _evaluate(
             row[COL_DEPTH] = depth
             for axis in range(6):
                 row[COL_CONTACTS + axis] = contact[axis]
+            row[COL_COVERAGE] = coverage
     return out
 
 
 def _parameters(
-    settings: RefinementSettings, view: GraspView, cell: float, floor: float
+    settings: RefinementSettings,
+    view: GraspView,
+    cell: float,
+    floor: float,
+    lenient: bool = False,
 ) -> FloatArray:
     """Return the kernel's parameter vector (entries ``P_*``) for one surface's cell and floor."""
     pad = settings.pad_size
@@ -362,10 +474,20 @@ def _parameters(
     params[P_STANDOFF] = view.standoff
     params[P_MIN_WIDTH] = cell
     params[P_FLOOR] = floor if view.up is not None else -math.inf
-    params[P_W_MARGIN] = WEIGHT_MARGIN
-    params[P_W_SUPPORT] = WEIGHT_SUPPORT
-    params[P_W_CLEARANCE] = WEIGHT_CLEARANCE
+    weights = (WEIGHT_MARGIN, WEIGHT_SUPPORT, WEIGHT_CLEARANCE, 0.0)
+    if settings.finger_length > 0.0:
+        weights = HAND_WEIGHTS
+    params[P_W_MARGIN], params[P_W_SUPPORT], params[P_W_CLEARANCE], params[P_W_COVERAGE] = weights
     params[P_REACH_SLACK] = REACH_SLACK * pad
+    params[P_LENGTH] = settings.finger_length if settings.finger_length > 0.0 else pad
+    params[P_THICKNESS] = settings.finger_thickness
+    params[P_PALM_HALF_DEPTH] = settings.palm_depth / 2.0
+    params[P_PALM_HALF_WIDTH] = settings.palm_width / 2.0
+    params[P_PALM_HEIGHT] = settings.palm_height
+    params[P_PALM_MARGIN] = PALM_MARGIN
+    params[P_BEYOND] = BEYOND_CELLS * cell if settings.finger_length > 0.0 else 0.0
+    params[P_TIP_CLEAR] = -1.0 if lenient else params[P_BEYOND]
+    params[P_MIN_DEPTH] = MIN_DEPTH_SHARE * settings.finger_depth * min(settings.depth_fractions)
     return params
 
 
@@ -376,6 +498,8 @@ def evaluate_lines(
     closings: FloatArray,
     settings: RefinementSettings,
     view: GraspView,
+    *,
+    lenient: bool = False,
 ) -> FloatArray:
     """
     Close the pad gripper along candidate lines on one surface model.
@@ -386,6 +510,8 @@ def evaluate_lines(
     :param closings: (C, 3) unit closing directions, perpendicular to the approaches.
     :param settings: the pads, friction and finger depth.
     :param view: the gripper's opening, standoff and the support.
+    :param lenient: with the hand described, take a pad that touches only at its tip as lying
+        flat too (the object's fallback when no line holds otherwise).
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
     depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
@@ -398,7 +524,7 @@ def evaluate_lines(
         np.array(approaches, dtype=np.float64, order='C'),
         np.array(closings, dtype=np.float64, order='C'),
         depths,
-        _parameters(settings, view, model.cell, model.floor),
+        _parameters(settings, view, model.cell, model.floor, lenient),
         up,
     )
 

@@ -17,16 +17,21 @@ on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.grasping.contacts import (
+    CLEARANCE_PADS,
     COL_CENTER,
+    COL_CLEARANCE,
+    COL_CONTACTS,
+    COL_COVERAGE,
     COL_DEPTH,
     COL_FIRST,
     COL_QUALITY,
+    COL_SUPPORT,
     COL_TIP,
     COL_VALID,
     COL_WIDTH,
@@ -409,6 +414,13 @@ def rescore_grasp(
     """
     if not models:
         return None
+    if settings.finger_length > 0.0:
+        # The described hand keeps the grasp's own depth past the first contact: another of
+        # the depths tried would move the fingertips by a centimetre or more.
+        kept_depth = max(grasp.depth - view.standoff, 1e-6)
+        settings = replace(settings, finger_depth=kept_depth, depth_fractions=(1.0,))
+    # A grasp that held may have a pad touch only at its tip in this frame's noise.
+    lenient = settings.finger_length > 0.0
     approach = np.asarray(grasp.approach, dtype=np.float64)
     closing = np.asarray(grasp.closing, dtype=np.float64)
     side = cross(approach, closing)
@@ -425,14 +437,20 @@ def rescore_grasp(
     for number, model in enumerate(models):
         if not _feasible(approach[None, :], np.array([number]), models, view)[0]:
             continue
-        rows = evaluate_lines(model, origins, approaches, closings, settings, view)
+        rows = evaluate_lines(
+            model, origins, approaches, closings, settings, view, lenient=lenient
+        )
         tips = (
             origins
             + rows[:, COL_TIP][:, None] * approaches
             + rows[:, COL_CENTER][:, None] * closings
         )
-        near = np.linalg.norm(tips - before, axis=1) <= settings.pad_size
+        moved = np.linalg.norm(tips - before, axis=1)
+        near = moved <= settings.pad_size
         quality = np.where((rows[:, COL_VALID] > 0.0) & near, rows[:, COL_QUALITY], -1.0)
+        if settings.finger_length > 0.0:
+            # The described hand keeps the one that moved least (a robot's same grasp).
+            quality = np.where(quality >= 0.0, 1.0 - moved / settings.pad_size, -1.0)
         pick = int(np.argmax(quality))
         if quality[pick] >= 0.0 and (best is None or quality[pick] > best[0]):
             best = (float(quality[pick]), number, pick, rows[pick])
@@ -522,11 +540,72 @@ def _robust_quality(
             continue
         lines = (origins[mine], approaches[mine], closings[mine])
         near = evaluate_lines(model, *_neighbours(*lines, settings.pad_size), settings, view)
+        if settings.finger_length > 0.0:
+            total[mine] = _hand_quality(model, *lines, rows[mine], near, settings.pad_size, view)
+            continue
         quality = np.concatenate([rows[mine, COL_QUALITY], near[:, COL_QUALITY]])
         held = quality.reshape(5, len(mine)).mean(axis=0)
         centring = _centring(model, *lines, rows[mine])
         total[mine] = (1.0 - CENTRING_WEIGHT) * held + CENTRING_WEIGHT * centring
     return total
+
+
+#: The hand model's score (``finger_length`` set): weights of its features, fitted on the
+#: physics trial's development objects only (``docs/grasp_rules.md``), and its centre.
+HAND_SCORE_WEIGHTS: dict[str, float] = {
+    'support': 0.69,
+    'clearance': 0.15,
+    'coverage': 0.59,
+    'neighbours': 0.97,
+    'width': -2.57,
+    'offset_side': -0.93,
+    'offset_closing': -1.76,
+    'closing_rise': -1.70,
+}
+HAND_SCORE_CENTRE = -0.28
+
+
+def _hand_quality(
+    model: SurfaceModel,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    rows: FloatArray,
+    near: FloatArray,
+    pad: float,
+    view: GraspView,
+) -> FloatArray:
+    """
+    Return each line's score in [0, 1] under the described hand: a logistic of its features.
+
+    Features: the pads' support, the fingers' clearance (full from half a pad), the pads'
+    coverage of the object along the approach, the share of the four neighbours (a robot's
+    pose error, :func:`_neighbours`) that hold, the width over the opening, the object's
+    centre's offset from the contacts' midpoint across the pads and along the closing line
+    (over the object's reach), and how much the closing direction rises (with `up`).
+    """
+    count = len(origins)
+    weights = HAND_SCORE_WEIGHTS
+    valid = (near[:, COL_VALID] > 0.0).reshape(4, count).mean(axis=0)
+    clearance = np.minimum(1.0, rows[:, COL_CLEARANCE] / (CLEARANCE_PADS * pad))
+    centroid = model.points.mean(axis=0)
+    reach = max(float(np.linalg.norm(model.points - centroid, axis=1).max()), 1e-12)
+    contacts = rows[:, slice(COL_CONTACTS, COL_CONTACTS + 6)].reshape(count, 2, 3)
+    middle = contacts.mean(axis=1)
+    offset = centroid - middle
+    side = cross(approaches, closings)
+    rise = np.zeros(count) if view.up is None else np.abs(closings @ view.up)
+    z = (
+        weights['support'] * rows[:, COL_SUPPORT]
+        + weights['clearance'] * clearance
+        + weights['coverage'] * rows[:, COL_COVERAGE]
+        + weights['neighbours'] * valid
+        + weights['width'] * rows[:, COL_WIDTH] / view.gripper_max_width
+        + weights['offset_side'] * np.abs(np.einsum('ij,ij->i', offset, side)) / reach
+        + weights['offset_closing'] * np.abs(np.einsum('ij,ij->i', offset, closings)) / reach
+        + weights['closing_rise'] * rise
+    )
+    return 1.0 / (1.0 + np.exp(-(z - HAND_SCORE_CENTRE)))
 
 
 def _centring(
@@ -611,9 +690,10 @@ def refine_grasps(
     for number, model in enumerate(models):
         mine = np.flatnonzero(objects == number)
         if len(mine):
-            rows[mine] = evaluate_lines(
-                model, origins[mine], approaches[mine], closings[mine], settings, view
-            )
+            lines = (origins[mine], approaches[mine], closings[mine])
+            rows[mine] = evaluate_lines(model, *lines, settings, view)
+            if not np.any(rows[mine, COL_VALID] > 0.0) and settings.finger_length > 0.0:
+                rows[mine] = evaluate_lines(model, *lines, settings, view, lenient=True)
     valid = np.flatnonzero(rows[:, COL_VALID] > 0.0)
     # Where each valid grasp closes, and the box of its object that holds that point.
     closes = (

@@ -46,6 +46,14 @@ class RefinementSettings:
         of the best new one.
     :ivar preference: weight of the task strategy in the score (the rest is the quality).
     :ivar depth_fractions: the finger depths tried, as fractions of `finger_depth`.
+    :ivar finger_length: length of the fingers' pads along the approach (the palm is this far
+        behind the fingertips); 0: `pad_size`.
+    :ivar finger_thickness: thickness of each finger outside the opening (with `up`: the open
+        fingers stay above the support).
+    :ivar palm_width: width of the palm along the closing direction; 0: no palm (nothing stops
+        the fingers but the points between them).
+    :ivar palm_depth: depth of the palm across the closing direction.
+    :ivar palm_height: height of the palm along the approach (behind the fingers).
     """
 
     enabled: bool = False
@@ -56,9 +64,23 @@ class RefinementSettings:
     hysteresis: float = DEFAULT_HYSTERESIS
     preference: float = DEFAULT_PREFERENCE
     depth_fractions: tuple[float, ...] = DEPTH_FRACTIONS
+    finger_length: float = 0.0
+    finger_thickness: float = 0.0
+    palm_width: float = 0.0
+    palm_depth: float = 0.0
+    palm_height: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ('friction', 'width_margin', 'hysteresis'):
+        for name in (
+            'friction',
+            'width_margin',
+            'hysteresis',
+            'finger_length',
+            'finger_thickness',
+            'palm_width',
+            'palm_depth',
+            'palm_height',
+        ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
         for name in ('pad_size', 'finger_depth'):
