@@ -49,6 +49,9 @@ Stage = Literal['lifted', 'collision', 'missed', 'slipped', 'dropped']
 STAGES: tuple[Stage, ...] = ('lifted', 'collision', 'missed', 'slipped', 'dropped')
 #: A closed hand whose pads are nearer than this (metres) holds nothing.
 MIN_GAP = 0.002
+#: The fingers close for at least their whole stroke's time and this much more, seconds (a
+#: wide hand's fingers stopped short of a thin object when given the 8 cm hand's time).
+CLOSE_SLACK_SECONDS = 0.2
 #: A held object is one both pads touched within this time (seconds): a contact can come and go
 #: for a step while the grip is sound.
 GRIP_MEMORY = 0.1
@@ -69,7 +72,8 @@ class TrialSettings:
     :ivar standoff: pre-grasp distance back along the approach.
     :ivar approach_speed: hand speed on the approach.
     :ivar closing_speed: speed of each finger while closing (set by the joints' damping).
-    :ivar close_seconds: time given to the fingers to close.
+    :ivar close_seconds: time given to the fingers to close (at least their whole stroke's
+        time and :data:`CLOSE_SLACK_SECONDS`).
     :ivar lift_height: how far the hand lifts.
     :ivar lift_seconds: time of the lift (a smooth start and stop).
     :ivar hold_seconds: still time after the lift and after the shake.
@@ -391,7 +395,9 @@ class _Trial:
             )
 
         data.ctrl[:] = -CLOSE_OVERSHOOT
-        for _ in range(self._steps(settings.close_seconds)):
+        # At least the time a finger takes to travel its whole stroke, and a little more.
+        stroke = hand.max_opening / 2.0 / settings.closing_speed + CLOSE_SLACK_SECONDS
+        for _ in range(self._steps(max(settings.close_seconds, stroke))):
             self._drive(grasp[:3, 3], quat)
             if self._hand_on_table():
                 return verdict('collision', 'a finger touched the table while closing')
