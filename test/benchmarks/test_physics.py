@@ -197,7 +197,7 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
             '--views',
             '2',
             '--contenders',
-            'node,primitive,cgn',
+            'node,paper,primitive,cgn',
             '--cgn-python',
             str(tmp_path / 'no-venv' / 'python'),
             '--json',
@@ -209,7 +209,7 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     assert code == 0
     data = json.loads(out.read_text())
     printed = capsys.readouterr().out
-    assert set(data['contenders']) == {'node', 'primitive'}
+    assert set(data['contenders']) == {'node', 'paper', 'primitive'}
     for name, summary in data['contenders'].items():
         assert summary['views'] == 2
         for key in ('top1', 'top5'):
@@ -223,10 +223,16 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     # Without its environment the CGN contender is skipped with the reason, and the run goes on.
     assert 'no-venv' in data['skipped']['cgn'] and 'contender cgn skipped' in printed
     records = data['records']
-    assert records and {r['contender'] for r in records} <= {'node', 'primitive'}
+    assert records and {r['contender'] for r in records} <= {'node', 'paper', 'primitive'}
     for record in records:
         assert {'object', 'view', 'contender', 'rank', 'stage', 'success', 'judge'} <= set(record)
         assert 0 <= record['rank'] < bench.TOP_K
+        # The paper's grasps go until contact (they close off their face-centre pose, unless
+        # the trial stopped before: None); the others close where they were sent.
+        if record['contender'] != 'paper':
+            assert record['advance'] in (0.0, None), record
+    paper = [r['advance'] for r in records if r['contender'] == 'paper']
+    assert any(a not in (0.0, None) for a in paper), paper
     views = [v for v in data['views'] if v['contender'] == 'node']
     assert sum(v['top1'] for v in views) == round(data['contenders']['node']['top1'] * 2)
     judge = data['judge']['all']
@@ -234,3 +240,5 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     assert sum(judge['confusion'].values()) == len(records)
     failures = [v for v in views if not v['top1']]
     assert (tmp_path / 'pictures' / 'node_failures_franka.png').exists() == bool(failures)
+    paper_failures = [v for v in data['views'] if v['contender'] == 'paper' and not v['top1']]
+    assert (tmp_path / 'pictures' / 'paper_failures_franka.png').exists() == bool(paper_failures)
