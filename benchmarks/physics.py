@@ -246,10 +246,11 @@ def try_view(
         start = time.perf_counter()
         # Best first, each from the same start with the hand fully open, until one holds: the
         # first success decides top-1 and top-5, the grasps after it cannot change either.
-        stages, successes, advances = [], [], []
+        stages, successes, advances, details = [], [], [], []
         for pose in poses:
             outcome = trial.try_grasp(view.placed.obj, view.placed.pose, pose, hand, settings)
             stages.append(str(outcome.stage))
+            details.append(outcome.detail)
             successes.append(bool(outcome.success))
             advances.append(float(outcome.advance))
             if outcome.success:
@@ -267,8 +268,8 @@ def try_view(
             )
             judged = [STATUS_NAMES[int(s)] for s in verdicts.status]
         base = {'set': set_name, 'object': view.placed.name, 'view': view.index, 'contender': name}
-        for rank, (pose, stage, success, judge, advance) in enumerate(
-            zip(poses, stages, successes, judged, advances, strict=True)
+        for rank, (pose, stage, success, judge, advance, detail) in enumerate(
+            zip(poses, stages, successes, judged, advances, details, strict=True)
         ):
             results.records.append(
                 {
@@ -276,6 +277,7 @@ def try_view(
                     'rank': rank,
                     'success': success,
                     'stage': stage,
+                    'detail': detail,
                     'judge': judge,
                     'pose': [[round(float(v), 6) for v in row] for row in pose],
                     'advance': None if math.isnan(advance) else round(advance, 6),

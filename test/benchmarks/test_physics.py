@@ -225,7 +225,16 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     records = data['records']
     assert records and {r['contender'] for r in records} <= {'node', 'paper', 'primitive'}
     for record in records:
-        assert {'object', 'view', 'contender', 'rank', 'stage', 'success', 'judge'} <= set(record)
+        assert {
+            'object',
+            'view',
+            'contender',
+            'rank',
+            'stage',
+            'detail',
+            'success',
+            'judge',
+        } <= set(record)
         assert 0 <= record['rank'] < bench.TOP_K
         # The paper's grasps go until contact (they close off their face-centre pose, unless
         # the trial stopped before: None); the others close where they were sent.
