@@ -251,3 +251,13 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     assert (tmp_path / 'pictures' / 'node_failures_franka.png').exists() == bool(failures)
     paper_failures = [v for v in data['views'] if v['contender'] == 'paper' and not v['top1']]
     assert (tmp_path / 'pictures' / 'paper_failures_franka.png').exists() == bool(paper_failures)
+
+
+def test_quick_mode_takes_fewer_views_when_contact_graspnet_runs(bench):
+    with_cgn = bench.parse_args(['--quick'])
+    assert 'cgn' in with_cgn.contenders and with_cgn.views == bench.QUICK_VIEWS_CGN
+    without = bench.parse_args(['--quick', '--contenders', 'node,paper,primitive'])
+    assert without.views == bench.QUICK_VIEWS > bench.QUICK_VIEWS_CGN
+    assert with_cgn.default_objects == without.default_objects == bench.QUICK_OBJECTS
+    assert bench.parse_args(['--quick', '--views', '3']).views == 3
+    assert bench.parse_args([]).views == bench.FULL_VIEWS
