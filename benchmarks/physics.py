@@ -1,7 +1,7 @@
 """
 The proving ground's benchmark (issue 36): contenders' grasps tried in a physics trial.
 
-    .venv/bin/python benchmarks/physics.py --quick                       # ~100 views, validation
+    .venv/bin/python benchmarks/physics.py --quick      # 50 views with cgn, 100 without
     .venv/bin/python benchmarks/physics.py --set validation --objects 100 --views 3
     .venv/bin/python benchmarks/physics.py --set shared --views 10 --hand wide
     .venv/bin/python benchmarks/physics.py --meshes my_objects/ --units mm --views 5
@@ -18,7 +18,9 @@ contender gets the same view and proposes grasp poses, best first:
   direction passed as ``up_direction`` (what a robot with TF knows: the benchmark of
   ``benchmarks/views.py`` calls it ``node+up``) and the hand's opening as ``gripper_max_width``;
 * ``paper``: the paper's algorithm (``PipelineSettings.paper()``: face-centre grasps, no up
-  direction) with the hand's opening;
+  direction) with the hand's opening, tried as the paper executed it in GraspIt! (the hand moves
+  along the face's approach line until it touches the object, backs off a little and closes:
+  the trial's ``approach='until_contact'``, :data:`TRIAL_APPROACH`);
 * ``primitive``: the cloud's minimum box grasped from above across its narrowest side
   (:mod:`mvbb_ros.evaluation.physics.primitive`, the rule of ROS's ``simple_grasping``);
 * ``cgn``: Contact-GraspNet in its own virtual environment, fed the z-up world-frame scene and the
@@ -35,6 +37,8 @@ as support): agreement with the trial and a confusion table.
 
 Node grasps are tried at their fingertip point: the published pose's origin moved ``depth`` along
 the approach (``docs/grasp_rules.md``), the point where the node means the fingertips to stop.
+Every contender but ``paper`` is tried with the trial's default approach (the fingers close at
+the given pose).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 import contextlib
+import dataclasses
 from dataclasses import dataclass, field
 import json
 import math
@@ -61,14 +66,22 @@ TOP_K = 5
 CONTENDERS = ('node', 'node_scene', 'paper', 'primitive', 'cgn')
 #: The object sets by name (``--meshes DIR`` adds one named after the folder).
 SETS = ('development', 'validation', 'shared')
-#: Quick mode: objects per random set and views per object (about 100 views).
-QUICK_OBJECTS, QUICK_VIEWS = 25, 4
+#: Quick mode: objects per random set and views per object (about 100 views), and the views
+#: per object when Contact-GraspNet runs (seconds a view on a CPU: 50 views, under 10 minutes).
+QUICK_OBJECTS, QUICK_VIEWS, QUICK_VIEWS_CGN = 25, 4, 2
 #: Full mode: objects per random set and views per object (300 views a set).
 FULL_OBJECTS, FULL_VIEWS = 100, 3
 #: Failures drawn in the montage.
 MONTAGE_PANELS = 24
 #: Stage name of a view where the contender proposed nothing.
 NO_GRASP = 'no grasp'
+#: Contenders whose poses name only an approach line, and the trial's approach for them (the
+#: others: the trial's default, ``'to_pose'``). The paper executed a face hypothesis in GraspIt!
+#: by approaching along the face normal until contact, retreating a small distance and closing
+#: (Huebner et al. 2008, section IV).
+TRIAL_APPROACH = {'paper': 'until_contact'}
+#: Contenders whose failures ``--pictures`` draws.
+PICTURED = ('node', 'paper')
 
 
 # Contenders ----------------------------------------------------------------------------------
@@ -281,7 +294,7 @@ class Results:
     records: list[dict[str, Any]] = field(default_factory=list)
     views: list[dict[str, Any]] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
-    failures: list[dict[str, Any]] = field(default_factory=list)
+    failures: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     steadiness: list[dict[str, Any]] = field(default_factory=list)
 
 
@@ -300,7 +313,13 @@ def try_view(
     import numpy as np
 
     opening = hand_opening(hand)
+    base_settings = trial.DEFAULT_SETTINGS if trial_settings is None else trial_settings
     for name, propose in proposers.items():
+        settings = (
+            dataclasses.replace(base_settings, approach=TRIAL_APPROACH[name])
+            if name in TRIAL_APPROACH
+            else base_settings
+        )
         start = time.perf_counter()
         proposed = [np.asarray(p, dtype=np.float64) for p in propose(view, hand)]
         poses = proposed[:TOP_K]
@@ -308,17 +327,13 @@ def try_view(
         start = time.perf_counter()
         # Best first, each from the same start with the hand fully open, until one holds: the
         # first success decides top-1 and top-5, the grasps after it cannot change either.
-        stages, successes = [], []
+        stages, successes, advances, details = [], [], [], []
         for pose in poses:
-            outcome = trial.try_grasp(
-                view.placed.obj,
-                view.placed.pose,
-                pose,
-                hand,
-                trial.DEFAULT_SETTINGS if trial_settings is None else trial_settings,
-            )
+            outcome = trial.try_grasp(view.placed.obj, view.placed.pose, pose, hand, settings)
             stages.append(str(outcome.stage))
+            details.append(outcome.detail)
             successes.append(bool(outcome.success))
+            advances.append(float(outcome.advance))
             if outcome.success:
                 break
         poses = poses[: len(stages)]
@@ -334,8 +349,8 @@ def try_view(
             )
             judged = [STATUS_NAMES[int(s)] for s in verdicts.status]
         base = {'set': set_name, 'object': view.placed.name, 'view': view.index, 'contender': name}
-        for rank, (pose, stage, success, judge) in enumerate(
-            zip(poses, stages, successes, judged, strict=True)
+        for rank, (pose, stage, success, judge, advance, detail) in enumerate(
+            zip(poses, stages, successes, judged, advances, details, strict=True)
         ):
             results.records.append(
                 {
@@ -343,8 +358,10 @@ def try_view(
                     'rank': rank,
                     'success': success,
                     'stage': stage,
+                    'detail': detail,
                     'judge': judge,
                     'pose': [[round(float(v), 6) for v in row] for row in pose],
+                    'advance': None if math.isnan(advance) else round(advance, 6),
                 }
             )
         row = {
@@ -359,10 +376,15 @@ def try_view(
             'trial_seconds': trial_seconds,
         }
         results.views.append(row)
-        if name == 'node' and not row['top1'] and len(results.failures) < MONTAGE_PANELS:
-            results.failures.append(
-                {**row, 'view_data': view, 'pose': poses[0] if poses else None}
-            )
+        failures = results.failures.setdefault(name, [])
+        if name in PICTURED and not row['top1'] and len(failures) < MONTAGE_PANELS:
+            drawn = None
+            if poses:
+                # Where the fingers closed (or, when the trial stopped before, the given pose).
+                drawn = poses[0].copy()
+                if not math.isnan(advances[0]):
+                    drawn[:3, 3] += advances[0] * drawn[:3, 2]
+            failures.append({**row, 'view_data': view, 'pose': drawn})
 
 
 def hand_opening(hand: Any) -> float:
@@ -620,12 +642,12 @@ def gripper_lines(pose: Any, opening: float, finger: float = 0.05) -> list[Any]:
 
 def draw_montage(failures: Sequence[Mapping[str, Any]], hand: Any, path: Path) -> int:
     """
-    Draw the node's failed views in a grid; return how many panels.
+    Draw a contender's failed views in a grid; return how many panels.
 
     Each panel is the view as its camera saw it (pixels): the table grey, the object coloured by
-    depth, the node's top grasp as a hand (red: the open fingers, the palm and the wrist; none
-    when it proposed nothing); the title names the view, the object's world box (x, y, z, cm)
-    and the trial's stage.
+    depth, the contender's top grasp as a hand where its fingers closed (red: the open fingers,
+    the palm and the wrist; none when it proposed nothing); the title names the view, the
+    object's world box (x, y, z, cm) and the trial's stage.
     """
     import matplotlib
 
@@ -713,7 +735,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         '--views',
         type=int,
         default=None,
-        help=f'views per object ({FULL_VIEWS}, quick {QUICK_VIEWS})',
+        help=f'views per object ({FULL_VIEWS}; quick {QUICK_VIEWS}, {QUICK_VIEWS_CGN} with cgn)',
     )
     parser.add_argument(
         '--hand',
@@ -728,7 +750,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument(
-        '--quick', action='store_true', help=f'{QUICK_OBJECTS} objects x {QUICK_VIEWS} views a set'
+        '--quick',
+        action='store_true',
+        help=f'{QUICK_OBJECTS} objects x {QUICK_VIEWS} views a set ({QUICK_VIEWS_CGN} with cgn)',
     )
     parser.add_argument('--no-judge', action='store_true', help='skip the analytic judge')
     parser.add_argument(
@@ -751,7 +775,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=Path,
         default=None,
         metavar='DIR',
-        help="write a montage of the node's failures here",
+        help="write montages of the node's and the paper's failures here",
     )
     parser.add_argument(
         '--cgn-python',
@@ -777,7 +801,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         parser.error(f'unknown contender {unknown}; known: {", ".join(CONTENDERS)}')
     args.default_objects = QUICK_OBJECTS if args.quick else FULL_OBJECTS
     if args.views is None:
-        args.views = QUICK_VIEWS if args.quick else FULL_VIEWS
+        quick = QUICK_VIEWS_CGN if 'cgn' in args.contenders else QUICK_VIEWS
+        args.views = quick if args.quick else FULL_VIEWS
     if args.objects is not None and args.objects < 1 or args.views < 1:
         parser.error('--objects and --views must be >= 1')
     return args
@@ -867,10 +892,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         write_json(args.json, report(results, names, meta))
         print(f'wrote {args.json}')
-    if args.pictures is not None and 'node' in proposers:
-        path = args.pictures / f'node_failures_{args.hand}.png'
-        panels = draw_montage(results.failures, hand, path)
-        print(f'wrote {path} ({panels} failures)' if panels else 'no node failures to draw')
+    for name in PICTURED:
+        if args.pictures is None or name not in proposers:
+            continue
+        path = args.pictures / f'{name}_failures_{args.hand}.png'
+        panels = draw_montage(results.failures.get(name, []), hand, path)
+        print(f'wrote {path} ({panels} failures)' if panels else f'no {name} failures to draw')
     return 0
 
 

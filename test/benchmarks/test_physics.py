@@ -8,6 +8,7 @@ import json
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mvbb_ros.evaluation.camera import orbit_pose
+from mvbb_ros.evaluation.physics.hand import FRANKA
 from mvbb_ros.evaluation.physics.primitive import primitive_grasps
 from mvbb_ros.evaluation.physics.views import (
     grasp_matrix,
@@ -129,11 +130,11 @@ def test_grasp_matrix_follows_the_convention():
         grasp_matrix([0, 0, 0], [0, 0, 1], [0, 0, 2])
 
 
-@pytest.mark.parametrize('contender', ['node', 'paper', 'primitive'])
+@pytest.mark.parametrize('contender', ['node', 'node_scene', 'paper', 'primitive'])
 def test_the_contenders_world_poses_land_on_the_object(bench, placed, views, contender):
     propose = bench.PROPOSERS[contender]
     for view in views:
-        poses = propose(view, 0.08)
+        poses = propose(view, FRANKA)
         assert poses, f'{contender} proposed nothing on {view.name}'
         for pose in poses:
             assert pose.shape == (4, 4)
@@ -197,7 +198,7 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
             '--views',
             '2',
             '--contenders',
-            'node,primitive,cgn',
+            'node,paper,primitive,cgn',
             '--cgn-python',
             str(tmp_path / 'no-venv' / 'python'),
             '--json',
@@ -209,7 +210,7 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     assert code == 0
     data = json.loads(out.read_text())
     printed = capsys.readouterr().out
-    assert set(data['contenders']) == {'node', 'primitive'}
+    assert set(data['contenders']) == {'node', 'paper', 'primitive'}
     for name, summary in data['contenders'].items():
         assert summary['views'] == 2
         for key in ('top1', 'top5'):
@@ -223,10 +224,25 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     # Without its environment the CGN contender is skipped with the reason, and the run goes on.
     assert 'no-venv' in data['skipped']['cgn'] and 'contender cgn skipped' in printed
     records = data['records']
-    assert records and {r['contender'] for r in records} <= {'node', 'primitive'}
+    assert records and {r['contender'] for r in records} <= {'node', 'paper', 'primitive'}
     for record in records:
-        assert {'object', 'view', 'contender', 'rank', 'stage', 'success', 'judge'} <= set(record)
+        assert {
+            'object',
+            'view',
+            'contender',
+            'rank',
+            'stage',
+            'detail',
+            'success',
+            'judge',
+        } <= set(record)
         assert 0 <= record['rank'] < bench.TOP_K
+        # The paper's grasps go until contact (they close off their face-centre pose, unless
+        # the trial stopped before: None); the others close where they were sent.
+        if record['contender'] != 'paper':
+            assert record['advance'] in (0.0, None), record
+    paper = [r['advance'] for r in records if r['contender'] == 'paper']
+    assert any(a not in (0.0, None) for a in paper), paper
     views = [v for v in data['views'] if v['contender'] == 'node']
     assert sum(v['top1'] for v in views) == round(data['contenders']['node']['top1'] * 2)
     judge = data['judge']['all']
@@ -234,3 +250,34 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
     assert sum(judge['confusion'].values()) == len(records)
     failures = [v for v in views if not v['top1']]
     assert (tmp_path / 'pictures' / 'node_failures_franka.png').exists() == bool(failures)
+    paper_failures = [v for v in data['views'] if v['contender'] == 'paper' and not v['top1']]
+    assert (tmp_path / 'pictures' / 'paper_failures_franka.png').exists() == bool(paper_failures)
+
+
+def test_quick_mode_takes_fewer_views_when_contact_graspnet_runs(bench):
+    with_cgn = bench.parse_args(['--quick'])
+    assert 'cgn' in with_cgn.contenders and with_cgn.views == bench.QUICK_VIEWS_CGN
+    without = bench.parse_args(['--quick', '--contenders', 'node,paper,primitive'])
+    assert without.views == bench.QUICK_VIEWS > bench.QUICK_VIEWS_CGN
+    assert with_cgn.default_objects == without.default_objects == bench.QUICK_OBJECTS
+    assert bench.parse_args(['--quick', '--views', '3']).views == 3
+    assert bench.parse_args([]).views == bench.FULL_VIEWS
+
+
+def test_the_node_is_steady_on_a_static_view_and_counts_its_frame_pairs(bench, views):
+    """Four frames of one view (fresh noise): three pairs, most of them the same grasp."""
+    same, pairs = bench.node_steadiness(views[0], FRANKA, 4, 0.0)
+    assert pairs == 3
+    assert 2 <= same <= 3
+
+
+def test_the_frames_of_a_view_differ_only_in_noise_or_in_the_camera_drift(views):
+    """Frame 0 is the view's pose; with drift, frame k's camera moved k * drift sideways."""
+    from mvbb_ros.evaluation.physics.views import view_frames
+
+    view = views[0]
+    frames = list(view_frames(view, 3, drift=0.002))
+    np.testing.assert_allclose(frames[0].camera_pose, view.camera_pose)
+    moved = frames[2].camera_pose[:3, 3] - view.camera_pose[:3, 3]
+    np.testing.assert_allclose(moved, 0.004 * view.camera_pose[:3, 0], atol=1e-12)
+    assert not np.array_equal(frames[0].points, frames[1].points)  # fresh noise

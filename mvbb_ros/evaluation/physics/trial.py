@@ -10,7 +10,11 @@ convention; :mod:`mvbb_ros.evaluation.physics.hand`). The stages, and the failur
 2. **Approach** along +z to the grasp pose at `approach_speed`. A ``collision`` when a palm or
    finger touches the table at any step, when the hand is held back (more than `block_tolerance`
    from where it is driven), or when it pushes the object (by more than `push_tolerance` or
-   `push_angle`). Grazing the object without moving it is allowed.
+   `push_angle`). Grazing the object without moving it is allowed. With ``approach =
+   'until_contact'`` (the paper's GraspIt! execution, for a pose that names only the approach
+   line) the hand instead stops at the first step where any part of it touches the object (at
+   most `standoff` plus the finger depth past the pre-grasp pose, so that the palm can reach the
+   given point), retreats `contact_retreat` and closes there.
 3. **Close** both fingers with the force limit. ``missed`` when the two pads do not both touch the
    object (or the fingers shut: gap under 2 mm).
 4. **Lift** `lift_height` straight up and hold. ``slipped`` when the object is no longer held.
@@ -45,6 +49,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 Stage = Literal['lifted', 'collision', 'missed', 'slipped', 'dropped']
+#: How the hand approaches: to the given pose, or along its line until it touches the object.
+Approach = Literal['to_pose', 'until_contact']
+APPROACHES: tuple[Approach, ...] = ('to_pose', 'until_contact')
 #: The stage names, success first.
 STAGES: tuple[Stage, ...] = ('lifted', 'collision', 'missed', 'slipped', 'dropped')
 #: A closed hand whose pads are nearer than this (metres) holds nothing.
@@ -87,6 +94,13 @@ class TrialSettings:
     :ivar drop_height: gap under the object when :func:`settle` lets it go.
     :ivar settle_seconds: longest time :func:`settle` waits for the object to come to rest.
     :ivar rest_speed: speed (m/s, and rad/s over 10) under which the object is at rest.
+    :ivar approach: ``'to_pose'``: the fingers close at the given pose; ``'until_contact'``: the
+        hand moves along the pose's approach line until any part of it touches the object, then
+        retreats `contact_retreat` and closes (Huebner et al. 2008, section IV: "We let the hand
+        approach along the normal until a contact is detected. After contact, the hand retreats
+        a small distance before we call GraspIt!'s auto-grasp function").
+    :ivar contact_retreat: how far the hand backs off after the contact (``'until_contact'``;
+        the paper says only "a small distance").
     """
 
     friction: float = 0.75
@@ -109,6 +123,8 @@ class TrialSettings:
     drop_height: float = 0.005
     settle_seconds: float = 4.0
     rest_speed: float = 0.002
+    approach: Approach = 'to_pose'
+    contact_retreat: float = 0.005
 
     def __post_init__(self) -> None:
         positive = (
@@ -124,6 +140,10 @@ class TrialSettings:
         )
         if not all(value > 0.0 for value in positive) or not 0.0 <= self.friction <= 2.0:
             raise ValueError(f'trial settings out of range: {self}')
+        if self.approach not in APPROACHES or not self.contact_retreat >= 0.0:
+            raise ValueError(
+                f'approach must be one of {APPROACHES} and contact_retreat >= 0: {self}'
+            )
 
     @property
     def options(self) -> PhysicsOptions:
@@ -148,6 +168,9 @@ class TrialResult:
     :ivar displacement: how far the object moved during the approach (metres).
     :ivar rise: how far the object rose from where it rested, at the end (metres).
     :ivar seconds: wall time of the trial (seconds).
+    :ivar advance: where the fingers closed, along the approach from the given pose (metres:
+        0 with ``approach='to_pose'``; negative when an ``'until_contact'`` hand stopped short of
+        it; NaN when the trial stopped before the approach ended).
     """
 
     success: bool
@@ -157,6 +180,7 @@ class TrialResult:
     displacement: float
     rise: float
     seconds: float
+    advance: float = math.nan
 
 
 def _position(start: int) -> slice:
@@ -349,6 +373,7 @@ class _Trial:
         rest_rotation = data.xmat[scene.object_body].reshape(3, 3).copy()
 
         pushed = [math.nan]  # the object's displacement on the approach, once known
+        advance = [math.nan]  # where the fingers close, along the approach, once known
 
         def verdict(stage: Stage, detail: str, closed: float = math.nan) -> TrialResult:
             now = data.xpos[scene.object_body]
@@ -365,20 +390,38 @@ class _Trial:
                 displacement=moved,
                 rise=float(now[2] - rest_position[2]),
                 seconds=time.perf_counter() - started,
+                advance=advance[0],
             )
 
         if self._hand_on_table():
             return verdict('collision', 'the hand touches the table at the pre-grasp pose')
         if self._hand_on_object():
             return verdict('collision', 'the hand touches the object at the pre-grasp pose')
-        steps = self._steps(settings.standoff / settings.approach_speed)
+        guarded = settings.approach == 'until_contact'
+        travel = settings.standoff + (hand.finger_depth if guarded else 0.0)
+        steps = self._steps(travel / settings.approach_speed)
+        reached = travel
         for step in range(1, steps + 1):
-            self._drive(start + settings.standoff * step / steps * approach, quat)
+            self._drive(start + travel * step / steps * approach, quat)
             if self._hand_on_table():
                 return verdict(
                     'collision', 'a finger or the palm touched the table on the approach'
                 )
-        self._hold(0.05, grasp[:3, 3], quat)
+            if guarded and self._hand_on_object():
+                # Where the hand is, not where it is driven: the weld trails the drive.
+                reached = float((data.xpos[scene.hand_body] - start) @ approach)
+                break
+        if guarded:
+            # Back off from the contact as the paper's hand did, at the approach speed.
+            back = min(settings.contact_retreat, reached)
+            retreat = self._steps(back / settings.approach_speed)
+            for step in range(1, retreat + 1):
+                self._drive(start + (reached - back * step / retreat) * approach, quat)
+            reached -= back
+        # The given pose itself when the hand goes to it (bit for bit: verdicts do not change).
+        closing_point = start + reached * approach if guarded else grasp[:3, 3].copy()
+        advance[0] = reached - settings.standoff if guarded else 0.0
+        self._hold(0.05, closing_point, quat)
         displacement = float(np.linalg.norm(data.xpos[scene.object_body] - rest_position))
         pushed[0] = displacement
         turn = data.xmat[scene.object_body].reshape(3, 3) @ rest_rotation.T
@@ -398,7 +441,7 @@ class _Trial:
         # At least the time a finger takes to travel its whole stroke, and a little more.
         stroke = hand.max_opening / 2.0 / settings.closing_speed + CLOSE_SLACK_SECONDS
         for _ in range(self._steps(max(settings.close_seconds, stroke))):
-            self._drive(grasp[:3, 3], quat)
+            self._drive(closing_point, quat)
             if self._hand_on_table():
                 return verdict('collision', 'a finger touched the table while closing')
         closed = float(data.qpos[scene.left_qpos] + data.qpos[scene.right_qpos])
@@ -406,7 +449,7 @@ class _Trial:
             return verdict('missed', 'the pads did not both close on the object', closed)
 
         self.watch_grip = True
-        base = grasp[:3, 3].copy()
+        base = closing_point.copy()
         steps = self._steps(settings.lift_seconds)
         for step in range(1, steps + 1):
             ramp = 0.5 - 0.5 * math.cos(math.pi * step / steps)

@@ -121,6 +121,36 @@ def test_a_hand_inside_the_object_at_the_pre_grasp_pose_collides():
     assert result.stage == 'collision' and 'pre-grasp' in result.detail, result
 
 
+UNTIL_CONTACT = TrialSettings(approach='until_contact')
+
+
+def test_until_contact_closes_where_the_paper_hand_stopped_and_to_pose_where_it_was_sent():
+    # The paper's face-centre pose: fingertips at the centre of the box's top face.
+    face = _grasp([0, 0, -1], [1, 0, 0], [0.0, 0.0, 0.10])
+    sent = try_grasp(BOX, _standing(BOX), face, FRANKA)
+    assert sent.stage == 'missed' and sent.advance == 0.0, sent
+    # Until contact: the 6 cm box passes between the open fingers, the palm meets its top, the
+    # hand backs off `contact_retreat` and the fingers close finger_depth - retreat below it.
+    guarded = try_grasp(BOX, _standing(BOX), face, FRANKA, UNTIL_CONTACT)
+    assert guarded.success, guarded
+    expected = FRANKA.finger_depth - UNTIL_CONTACT.contact_retreat
+    assert guarded.advance == pytest.approx(expected, abs=0.002)
+    assert guarded.gap == pytest.approx(0.06, abs=0.003)
+    # A 10 cm cube is wider than the 8 cm opening: a fingertip meets its top, the hand backs
+    # off and the pads close on air above it.
+    cube = _box((0.10, 0.10, 0.10), 'cube')
+    stopped = try_grasp(cube, _standing(cube), face, FRANKA, UNTIL_CONTACT)
+    assert stopped.stage == 'missed', stopped
+    assert stopped.advance == pytest.approx(-UNTIL_CONTACT.contact_retreat, abs=0.002)
+    # The table still stops a hand that meets it before the object.
+    flat = _box((0.06, 0.06, 0.03), 'flat')
+    low_side = _grasp([1, 0, 0], [0, 1, 0], [-0.03, 0.0, 0.008])
+    result = try_grasp(flat, _standing(flat), low_side, FRANKA, UNTIL_CONTACT)
+    assert result.stage == 'collision' and 'table' in result.detail, result
+    with pytest.raises(ValueError, match='approach'):
+        TrialSettings(approach='sideways')  # type: ignore[arg-type]
+
+
 def test_same_inputs_same_verdicts_and_batch_equals_one_at_a_time():
     obj = random_object(5)
     pose = settle(obj, seed=3)
