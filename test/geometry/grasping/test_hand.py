@@ -69,9 +69,7 @@ def test_the_open_hand_stays_above_the_support(height, width, turn, tilt, seed):
     points = box_surface((width, 1.3 * width, height), np.eye(3), center)
     model = surface_model(points, cell=CELL, up=UP)
     clearance = 0.005
-    view = GraspView(
-        gripper_max_width=0.08, standoff=0.05, up=UP, support_clearance=clearance
-    )
+    view = GraspView(gripper_max_width=0.08, standoff=0.05, up=UP, support_clearance=clearance)
     origins, approaches, closings = _top_down(center, turn)
     turned = Rotation.from_rotvec(tilt * closings[0]).apply(approaches)  # approach tilted
     origins = origins + rng.normal(scale=0.005, size=(1, 3))
