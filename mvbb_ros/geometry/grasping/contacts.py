@@ -82,12 +82,19 @@ EVALUATION_COLUMNS = 18
     P_BEYOND,
     P_W_COVERAGE,
     P_TIP_CLEAR,
-) = range(26)
-PARAMETER_COUNT = 26
+    P_FLAT_COS,
+) = range(27)
+PARAMETER_COUNT = 27
 #: The palm stays this far (metres) behind the nearest point in front of it.
 PALM_MARGIN = 0.004
 #: Points this many grid cells past the fingertips tell whether a pad lies flat on the object.
 BEYOND_CELLS = 1.5
+#: A pad lies flat on what it touches only when the points there face it within this angle
+#: (degrees; their mean estimated normal).
+FLAT_FACING_DEG = 45.0
+#: The lenient pass (an object where no line holds otherwise) takes a pad touching only at its
+#: tip as flat when the tip is at most this high above the support (metres, with up known).
+LENIENT_TIP_HEIGHT = 0.012
 #: A depth cut short by the palm or the support must keep this share of the shallowest depth.
 MIN_DEPTH_SHARE = 0.5
 
@@ -166,6 +173,18 @@ def _place_hand(
         if abs(moved) <= 1e-12 * (1.0 + half):
             break
     return HAND_PLACED, first, tip, center, low, high, pad_low, pad_high
+
+
+@nb.njit(cache=True)
+def _facing(normal: FloatArray, side: int, c: FloatArray, sign: float, cos_limit: float) -> bool:
+    """Tell whether one pad's summed normal is within the angle of its pad (or unknown)."""
+    nx = normal[3 * side]
+    ny = normal[3 * side + 1]
+    nz = normal[3 * side + 2]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if norm <= 1e-12:
+        return True  # only edge points: their normals are unknown
+    return sign * (nx * c[0] + ny * c[1] + nz * c[2]) >= cos_limit * norm
 
 
 @nb.njit(
@@ -382,11 +401,25 @@ def _evaluate(
             # Only where the pad touches above its tip: a touch at the tip alone may be the
             # slope of a bulge the view does not show.
             if params[P_BEYOND] > 0.0:
-                above = tip - params[P_TIP_CLEAR]
-                if beyond_high <= pad_high + params[P_TOLERANCE] and shallowest[0] <= above:
+                above = tip - params[P_BEYOND]
+                if params[P_TIP_CLEAR] > 0.0 and params[P_FLOOR] > -inf:
+                    # The lenient pass: a tip this near the support leaves no room below it
+                    # for a bulge, so a touch at the tip lies flat too.
+                    height = (o[0] + tip * a[0] + center * c[0]) * up[0]
+                    height += (o[1] + tip * a[1] + center * c[1]) * up[1]
+                    height += (o[2] + tip * a[2] + center * c[2]) * up[2]
+                    if height - params[P_FLOOR] <= params[P_TIP_CLEAR]:
+                        above = inf
+                # ... and whose points face the pad roughly (a face at a steep angle to the pad
+                # is met by the pad's edge, as at a box's edge).
+                facing_plus = _facing(normal, 0, c, 1.0, params[P_FLAT_COS])
+                facing_minus = _facing(normal, 1, c, -1.0, params[P_FLAT_COS])
+                flat_plus = beyond_high <= pad_high + params[P_TOLERANCE] and facing_plus
+                if flat_plus and shallowest[0] <= above:
                     for axis in range(3):
                         normal[axis] = c[axis]
-                if beyond_low >= pad_low - params[P_TOLERANCE] and shallowest[1] <= above:
+                flat_minus = beyond_low >= pad_low - params[P_TOLERANCE] and facing_minus
+                if flat_minus and shallowest[1] <= above:
                     for axis in range(3):
                         normal[3 + axis] = -c[axis]
             # The contact line from the - pad's contact to the + pad's.
@@ -486,7 +519,8 @@ def _parameters(
     params[P_PALM_HEIGHT] = settings.palm_height
     params[P_PALM_MARGIN] = PALM_MARGIN
     params[P_BEYOND] = BEYOND_CELLS * cell if settings.finger_length > 0.0 else 0.0
-    params[P_TIP_CLEAR] = -1.0 if lenient else params[P_BEYOND]
+    params[P_TIP_CLEAR] = LENIENT_TIP_HEIGHT if lenient else 0.0
+    params[P_FLAT_COS] = math.cos(math.radians(FLAT_FACING_DEG))
     params[P_MIN_DEPTH] = MIN_DEPTH_SHARE * settings.finger_depth * min(settings.depth_fractions)
     return params
 
@@ -510,8 +544,9 @@ def evaluate_lines(
     :param closings: (C, 3) unit closing directions, perpendicular to the approaches.
     :param settings: the pads, friction and finger depth.
     :param view: the gripper's opening, standoff and the support.
-    :param lenient: with the hand described, take a pad that touches only at its tip as lying
-        flat too (the object's fallback when no line holds otherwise).
+    :param lenient: with the hand described and up known, take a pad that touches only at its
+        tip as lying flat too when the tip is near the support (:data:`LENIENT_TIP_HEIGHT`; the
+        object's fallback when no line holds otherwise).
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
     depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
