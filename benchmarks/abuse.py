@@ -121,6 +121,8 @@ class Case:
     :ivar heavy: takes more than a few seconds (a ``slow`` test).
     :ivar time_limit_s: its own time limit, seconds, when longer than the default's.
     :ivar tested: run by ``test/robustness/test_abuse.py`` too (the longest only here).
+    :ivar peak_mb: the most resident memory it may take, MiB (1 GiB; more only for settings
+        that lift the node's caps, whose work grows with the cloud by design).
     """
 
     name: str
@@ -130,6 +132,7 @@ class Case:
     heavy: bool = False
     time_limit_s: float = 0.0
     tested: bool = True
+    peak_mb: float = 1024.0
 
 
 CASES: tuple[Case, ...] = (
@@ -144,6 +147,7 @@ CASES: tuple[Case, ...] = (
         'the same with max_objects 0 (every object decomposed and grasped)',
         lambda folder: ['decompose', _npy(folder, 'blobs', blobs_cloud()), '-p', 'max_objects:=0'],
         heavy=True,
+        peak_mb=1400.0,  # every one of 300 objects decomposed and grasped: no cap by request
     ),
     Case(
         'paper_gain1_sphere50k',

@@ -3,7 +3,8 @@ Abusive inputs and settings, each through the `mvbb` command in a bounded proces
 
 The cases are ``benchmarks/abuse.py``'s (which prints them as a table, for this tree or
 another): each runs under an address-space limit (1.5 GB) and a time limit, and must end with
-its expected exit code, without a traceback, using less than a gigabyte of resident memory.
+its expected exit code, without a traceback, using less than a gigabyte of resident memory
+(more only where a setting lifts the node's caps on purpose: the case says how much).
 The heavy ones are ``slow``; the longest (minutes) is only in the benchmark, its smaller twin here.
 """
 
@@ -15,7 +16,6 @@ from support.data import load_benchmark, REPO_ROOT
 abuse = load_benchmark('abuse')
 
 #: Resident memory each case must stay under, MiB (the issue's bound).
-PEAK_MB = 1024.0
 #: What each case's output must say (the line a user reads).
 SAYS = {
     'blobs300': 'max_objects: kept the 16 largest of',
@@ -43,5 +43,5 @@ def test_an_abusive_case_ends_cleanly_within_its_limits(tmp_path, case):
     assert not outcome.timed_out, f'{case.name}: killed after {outcome.seconds:.0f} s'
     assert not outcome.traceback, outcome.output[-3000:]
     assert outcome.code in case.codes, outcome.output[-3000:]
-    assert outcome.peak_mb < PEAK_MB, f'{case.name}: {outcome.peak_mb:.0f} MiB'
+    assert outcome.peak_mb < case.peak_mb, f'{case.name}: {outcome.peak_mb:.0f} MiB'
     assert SAYS[case.name] in outcome.output, outcome.output[-3000:]
