@@ -402,7 +402,9 @@ def _evaluate(
             # slope of a bulge the view does not show.
             if params[P_BEYOND] > 0.0:
                 above = tip - params[P_BEYOND]
-                if params[P_TIP_CLEAR] > 0.0 and params[P_FLOOR] > -inf:
+                if params[P_TIP_CLEAR] == inf:
+                    above = inf
+                elif params[P_TIP_CLEAR] > 0.0 and params[P_FLOOR] > -inf:
                     # The lenient pass: a tip this near the support leaves no room below it
                     # for a bulge, so a touch at the tip lies flat too.
                     height = (o[0] + tip * a[0] + center * c[0]) * up[0]
@@ -491,6 +493,7 @@ def _parameters(
     cell: float,
     floor: float,
     lenient: bool = False,
+    held: bool = False,
 ) -> FloatArray:
     """Return the kernel's parameter vector (entries ``P_*``) for one surface's cell and floor."""
     pad = settings.pad_size
@@ -521,6 +524,9 @@ def _parameters(
     params[P_BEYOND] = BEYOND_CELLS * cell if settings.finger_length > 0.0 else 0.0
     params[P_TIP_CLEAR] = LENIENT_TIP_HEIGHT if lenient else 0.0
     params[P_FLAT_COS] = math.cos(math.radians(FLAT_FACING_DEG))
+    if held:
+        params[P_TIP_CLEAR] = math.inf  # any tip contact lies flat
+        params[P_FLAT_COS] = -1.0  # whatever the points' normals
     params[P_MIN_DEPTH] = MIN_DEPTH_SHARE * settings.finger_depth * min(settings.depth_fractions)
     return params
 
@@ -534,6 +540,7 @@ def evaluate_lines(
     view: GraspView,
     *,
     lenient: bool = False,
+    held: bool = False,
 ) -> FloatArray:
     """
     Close the pad gripper along candidate lines on one surface model.
@@ -547,6 +554,9 @@ def evaluate_lines(
     :param lenient: with the hand described and up known, take a pad that touches only at its
         tip as lying flat too when the tip is near the support (:data:`LENIENT_TIP_HEIGHT`; the
         object's fallback when no line holds otherwise).
+    :param held: with the hand described, every pad touching where the object is widest in its
+        reach lies flat (at the tip too, whatever the points' normals): the check of a grasp
+        that held in the previous frame, whose contacts the view's noise moves by a cell.
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
     depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
@@ -559,7 +569,7 @@ def evaluate_lines(
         np.array(approaches, dtype=np.float64, order='C'),
         np.array(closings, dtype=np.float64, order='C'),
         depths,
-        _parameters(settings, view, model.cell, model.floor, lenient),
+        _parameters(settings, view, model.cell, model.floor, lenient, held),
         up,
     )
 

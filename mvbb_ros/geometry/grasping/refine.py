@@ -419,8 +419,9 @@ def rescore_grasp(
         # the depths tried would move the fingertips by a centimetre or more.
         kept_depth = max(grasp.depth - view.standoff, 1e-6)
         settings = replace(settings, finger_depth=kept_depth, depth_fractions=(1.0,))
-    # A grasp that held may have a pad touch only at its tip in this frame's noise.
-    lenient = settings.finger_length > 0.0
+    # A grasp that held may have a pad touch only at its tip, or on points whose estimated
+    # normals turned, in this frame's noise.
+    held = settings.finger_length > 0.0
     approach = np.asarray(grasp.approach, dtype=np.float64)
     closing = np.asarray(grasp.closing, dtype=np.float64)
     side = cross(approach, closing)
@@ -437,9 +438,7 @@ def rescore_grasp(
     for number, model in enumerate(models):
         if not _feasible(approach[None, :], np.array([number]), models, view)[0]:
             continue
-        rows = evaluate_lines(
-            model, origins, approaches, closings, settings, view, lenient=lenient
-        )
+        rows = evaluate_lines(model, origins, approaches, closings, settings, view, held=held)
         tips = (
             origins
             + rows[:, COL_TIP][:, None] * approaches
