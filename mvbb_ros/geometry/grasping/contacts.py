@@ -527,7 +527,10 @@ def _parameters(
     if held:
         params[P_TIP_CLEAR] = math.inf  # any tip contact lies flat
         params[P_FLAT_COS] = -1.0  # whatever the points' normals
+    # Cut short only with the hand described; the pad model refuses such a depth, as before.
     params[P_MIN_DEPTH] = MIN_DEPTH_SHARE * settings.finger_depth * min(settings.depth_fractions)
+    if not settings.finger_length > 0.0:
+        params[P_MIN_DEPTH] = math.inf
     return params
 
 
