@@ -587,8 +587,7 @@ def _hand_quality(
     weights = HAND_SCORE_WEIGHTS
     valid = (near[:, COL_VALID] > 0.0).reshape(4, count).mean(axis=0)
     clearance = np.minimum(1.0, rows[:, COL_CLEARANCE] / (CLEARANCE_PADS * pad))
-    centroid = model.points.mean(axis=0)
-    reach = max(float(np.linalg.norm(model.points - centroid, axis=1).max()), 1e-12)
+    centroid, reach = _centre_and_reach(model)
     contacts = rows[:, slice(COL_CONTACTS, COL_CONTACTS + 6)].reshape(count, 2, 3)
     middle = contacts.mean(axis=1)
     offset = centroid - middle
@@ -605,6 +604,12 @@ def _hand_quality(
         + weights['closing_rise'] * rise
     )
     return 1.0 / (1.0 + np.exp(-(z - HAND_SCORE_CENTRE)))
+
+
+def _centre_and_reach(model: SurfaceModel) -> tuple[FloatArray, float]:
+    """Return the centroid of the model's points and their largest distance from it (> 0)."""
+    centroid = model.points.mean(axis=0)
+    return centroid, max(float(np.linalg.norm(model.points - centroid, axis=1).max()), 1e-12)
 
 
 def _centring(
@@ -624,15 +629,14 @@ def _centring(
     """
     if not len(model.points):
         return np.zeros(len(origins))
-    centroid = model.points.mean(axis=0)
-    reach = float(np.linalg.norm(model.points - centroid, axis=1).max())
+    centroid, reach = _centre_and_reach(model)
     contacts = (
         origins + rows[:, COL_TIP][:, None] * approaches + rows[:, COL_CENTER][:, None] * closings
     )
     offset = centroid - contacts
     across = offset - np.einsum('ij,ij->i', offset, closings)[:, None] * closings
     distance = np.linalg.norm(across, axis=1)
-    return np.clip(1.0 - distance / max(reach, 1e-12), 0.0, 1.0)
+    return np.clip(1.0 - distance / reach, 0.0, 1.0)
 
 
 def _score(
