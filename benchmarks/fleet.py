@@ -29,8 +29,8 @@ import subprocess
 import sys
 import time
 
-#: Topics of the shared bags and of the demo scenes; each bag uses the first it has.
-TOPICS = ('/segmented_object', '/luminar_pointcloud', '/demo/segmented_objects')
+#: Topics of the shared bags; the demo scenes use the demo's own topic.
+SHARED_TOPICS = ('/segmented_object', '/luminar_pointcloud')
 SHARED_BAGS = (
     'embag_luminar_lidar_ros1.bag',
     'embag_luminar_lidar_ros2',
@@ -62,11 +62,12 @@ def make_bags(folder: Path, frames: int, shared: Path) -> list[Path]:
 
 
 def _topic(bag: Path) -> str:
+    from mvbb_ros.cli.demo import DEMO_TOPIC
     from mvbb_ros.ros.bag import CloudBag
 
     with CloudBag(bag) as reader:
         present = {topic.name for topic in reader.cloud_topics()}
-    return next(topic for topic in TOPICS if topic in present)
+    return next(topic for topic in (*SHARED_TOPICS, DEMO_TOPIC) if topic in present)
 
 
 def _name(bag: Path) -> str:
@@ -96,10 +97,11 @@ def _identical(left: Path, right: Path) -> bool:
 def fleet_run(manifest: Path, output: Path, workers: int) -> dict[str, float | str]:
     """Run `mvbb fleet` over the manifest; return its figures."""
     import pyarrow.parquet as pq
+    from mvbb_ros.cli.demo import DEMO_TOPIC
 
     command = [sys.executable, '-m', 'mvbb_ros.cli.main', 'fleet', str(manifest)]
     command += ['--output', str(output), '--workers', str(workers), '--no-progress']
-    for topic in TOPICS:
+    for topic in (*SHARED_TOPICS, DEMO_TOPIC):
         command += ['--topic', topic]
     before = _load()
     start = time.perf_counter()
