@@ -554,6 +554,14 @@ def _run_bag_process(args: argparse.Namespace) -> int:
     bar.close()
     for line in format_totals(summary):
         print(line)
+    if summary.storage_error:  # the processed clouds are written; a script must still notice
+        print(
+            f'mvbb bag process: error: {summary.storage_error.rstrip(".")}; kept the '
+            f'{summary.clouds} '
+            f'clouds before it in {summary.output_path}',
+            file=sys.stderr,
+        )
+        return EXIT_FAILURE
     return EXIT_OK
 
 

@@ -6,10 +6,12 @@ writes :func:`mvbb_ros.ros.messages.output_messages` (what the node publishes) i
 rosbag2 at the input's timestamps, optionally with the input clouds, so the result plays in RViz
 (``ros2 bag play``) or Foxglove. The output is written into a temporary directory beside it and
 renamed into place only when complete (:func:`mvbb_ros.common.atomic.atomic_path`): a failure
-leaves nothing behind. A message that does not deserialize as a PointCloud2 (corrupt bytes) is
-skipped, and listed in the summary (:attr:`ProcessSummary.skipped`); the other clouds are
-processed and written as usual. :func:`format_row` and :func:`format_totals` make the table that
-`mvbb bag process` prints.
+leaves nothing behind, but for one: when the bag's storage fails partway (a file cut short, an
+index that lists more messages than it holds), the output holds the clouds processed before
+that point and :attr:`ProcessSummary.storage_error` says where. A message that does not
+deserialize as a PointCloud2 (corrupt bytes) is skipped, and listed in the summary
+(:attr:`ProcessSummary.skipped`); the other clouds are processed and written as usual.
+:func:`format_row` and :func:`format_totals` make the table that `mvbb bag process` prints.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.bag import (
     BagError,
+    BagStorageError,
     BagWriter,
     CLOUD_TYPE,
     CloudBag,
@@ -91,6 +94,8 @@ class ProcessSummary:
     :ivar skipped: the messages skipped because they do not deserialize, in bag order.
     :ivar topics: output topic -> messages written.
     :ivar wall_seconds: wall-clock time of the whole run (reading, processing, writing).
+    :ivar storage_error: where the bag's storage failed partway ('' when it did not); the
+        output then holds the clouds before that point.
     """
 
     input_path: Path
@@ -100,6 +105,7 @@ class ProcessSummary:
     skipped: list[SkippedMessage] = field(default_factory=list)
     topics: dict[str, int] = field(default_factory=dict)
     wall_seconds: float = 0.0
+    storage_error: str = ''
 
     @property
     def clouds(self) -> int:
@@ -337,7 +343,10 @@ def process_bag(
     with `with_input` the cloud itself is written first, on its own topic. Every cloud gives
     one message per output topic, also when the outputs are cleared (bad cloud). A message
     that does not deserialize as a PointCloud2 gives no outputs: it is skipped and listed in
-    :attr:`ProcessSummary.skipped`, and the run goes on.
+    :attr:`ProcessSummary.skipped`, and the run goes on. When the storage fails partway
+    (:class:`~mvbb_ros.ros.bag.BagStorageError`: a truncated file, an index that lists more
+    messages than the bag holds), the clouds processed before are written as a complete bag
+    and :attr:`ProcessSummary.storage_error` says where the storage failed.
 
     :param input_path: any bag :class:`CloudBag` reads.
     :param output_path: the rosbag2 directory to write; written atomically.
@@ -384,7 +393,7 @@ def process_bag(
                 if on_skip is not None:
                     on_skip(message)
 
-            for row, messages, cloud, result in process_clouds(
+            processed = process_clouds(
                 bag,
                 cloud_topic,
                 settings,
@@ -392,12 +401,16 @@ def process_bag(
                 with_input=with_input,
                 namespace=namespace,
                 on_skip=skip if skip_corrupt else None,
-            ):
-                for message in messages:
-                    out.write(*message)
-                summary.rows.append(row)
-                if on_cloud is not None:
-                    on_cloud(row, cloud, result)
+            )
+            try:
+                for row, messages, cloud, result in processed:
+                    for message in messages:
+                        out.write(*message)
+                    summary.rows.append(row)
+                    if on_cloud is not None:
+                        on_cloud(row, cloud, result)
+            except BagStorageError as error:  # keep what came before: those clouds are whole
+                summary.storage_error = str(error)
             summary.topics = dict(out.counts)
     summary.wall_seconds = time.perf_counter() - start
     return summary
