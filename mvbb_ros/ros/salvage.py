@@ -19,6 +19,8 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 import itertools
+import mmap
+import os
 from pathlib import Path
 import struct
 from typing import Any, Final
@@ -171,8 +173,10 @@ class _McapRecords:
 
     def messages(self) -> Iterator[RawMessage]:
         """Yield every message in file order; raise :class:`StorageCutError` where it ends."""
-        data = self.path.read_bytes()
-        if not data.startswith(MCAP_MAGIC):
+        with open(self.path, 'rb') as handle:  # mapped, not read: bags are larger than memory
+            size = os.fstat(handle.fileno()).st_size
+            data = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) if size else b''
+        if not data[: len(MCAP_MAGIC)] == MCAP_MAGIC:
             raise StorageCutError(f'{self.path.name} does not start as an MCAP file')
         view = memoryview(data)
         base = len(MCAP_MAGIC)
