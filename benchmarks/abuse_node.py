@@ -1,6 +1,8 @@
 """
-The real node under abuse: the 300-blob cloud while its parameter services are called, and its
-start with a torn kernel cache and from a read-only install.
+The real node under abuse: the 300-blob cloud during parameter calls; starts with a bad cache.
+
+The 300-blob cloud while its parameter services are called, and its start with a torn kernel
+cache and from a read-only install.
 
 Run from the repository root::
 
@@ -15,9 +17,11 @@ The frame: after one small cloud (so that the first frame's one-off costs are pa
 process publishes the unsegmented cloud of ``benchmarks/abuse.py`` (300 small blobs, 60k points,
 1.7 m across; ``--frames`` times, 1 s apart) and, until the node's grasps for it arrive, calls the
 node's GetParameters and ListParameters services in turn, one call 50 ms after the last one
-answered, recording each call's latency. It samples the node's resident memory (psutil) every 20 ms and reads its peak
-(``VmHWM``) at the end; it reports the frame time (publish to the grasps' arrival), the node's
-log lines during the frame (its notes: what was capped) and the diagnostics' key values after it.
+answered, recording each call's latency. It samples the node's resident memory (psutil) every
+20 ms and reads its peak (``VmHWM``) at the end; it reports the frame time (publish to the
+grasps' arrival), the node's log lines during the frame and the diagnostics' key values after it
+(what was capped, the result's notes). Before the frames, the same calls to the idle node are
+the peer.
 
 The starts: the package is copied with its warm kernel cache into a temporary install; the time
 is from spawning the node to its first answer to GetParameters. Three starts: the copy as it is;
@@ -46,10 +50,7 @@ import psutil
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path[:0] = [str(HERE), str(ROOT / 'test')]
-
-from abuse import blobs_cloud  # noqa: E402 (the benchmarks folder, put on the path above)
-from support.mounts import read_only_command  # noqa: E402
+sys.path[:0] = [str(HERE), str(ROOT / 'test')]  # the abuse suite's cloud, the tests' mounts
 
 #: Pause between the end of one parameter call and the next, seconds.
 CALL_PERIOD_S = 0.05
@@ -198,6 +199,7 @@ def _percentile(values: list[float], q: float) -> float:
 
 def blobs_frame(probe: Probe, folder: Path, frames: int) -> bool:
     """Run the 300-blob cloud `frames` times through the node, calling its parameter services."""
+    from abuse import blobs_cloud
     from support.shapes import l_shape_points
 
     log = folder / 'node_blobs.log'
@@ -343,6 +345,8 @@ def _install_copy(folder: Path) -> Path:
 
 def starts(probe: Probe, folder: Path) -> bool:
     """Time the node's start from a copied install: as is, with a torn cache, read-only."""
+    from support.mounts import read_only_command
+
     root = _install_copy(folder)
     home = folder / 'home'
     home.mkdir()
@@ -363,7 +367,8 @@ def starts(probe: Probe, folder: Path) -> bool:
             if any(word in line for word in ('KernelCacheWarning', 'compiling', 'cannot write'))
             or 'Traceback' in line
         ]
-        said = [line[max(0, line.find('KernelCacheWarning')) :] for line in said]
+        warning = 'KernelCacheWarning'
+        said = [warning + line.split(warning, 1)[1] if warning in line else line for line in said]
         rows.append((name, seconds, code, said))
         ok = ok and seconds == seconds and code == 0 and 'Traceback' not in text
 

@@ -18,8 +18,9 @@ reports the messages it skipped (:func:`skipped_entry`). A bag whose storage fai
 
 Every output appears under its final name only when complete (atomic renames), and
 ``<bag>.fleet.json`` beside the bag's folder records the settings hash, the per-cloud rows and
-the skipped messages, so a re-run skips the bag (:func:`completed_rows`). Each attempt at a task leaves a marker in the
-staging folder (``.fleet/``), which is how the summary counts Ray's retries of a killed worker.
+the skipped messages, so a re-run skips the bag (:func:`completed_rows`). Each attempt at a
+task leaves a marker in the staging folder (``.fleet/``), which is how the summary counts Ray's
+retries of a killed worker.
 """
 
 from __future__ import annotations

@@ -66,7 +66,7 @@ def _same_tree(left: Path, right: Path) -> bool:
 
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
-    """The bags, their serial `bag process` outputs, and one fleet run over both."""
+    """Write the bags, run `bag process` on each, then one fleet run over both."""
     folder = tmp_path_factory.mktemp('corrupt_fleet')
     bags = {name: _write_bag(folder / name, *spec) for name, spec in BAGS.items()}
     serial: dict[str, Path] = {}
