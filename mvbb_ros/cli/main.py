@@ -554,6 +554,14 @@ def _run_bag_process(args: argparse.Namespace) -> int:
     bar.close()
     for line in format_totals(summary):
         print(line)
+    if summary.storage_error:  # the processed clouds are written; a script must still notice
+        print(
+            f'mvbb bag process: error: {summary.storage_error.rstrip(".")}; kept the '
+            f'{summary.clouds} '
+            f'clouds before it in {summary.output_path}',
+            file=sys.stderr,
+        )
+        return EXIT_FAILURE
     return EXIT_OK
 
 
@@ -686,10 +694,16 @@ def _run_fleet(args: argparse.Namespace) -> int:
     }
     retries = sum(report.retries for report in reports)
     rate = result.clouds / result.wall_seconds if result.wall_seconds > 0 else 0.0
+    skipped = (
+        f'; skipped {result.skipped} messages that do not deserialize (corrupt; listed in the '
+        'summary)'
+        if result.skipped
+        else ''
+    )
     print(
         f'{counts["processed"]} processed, {counts["resumed"]} resumed, {counts["failed"]} '
         f'failed; {result.clouds} clouds in {result.wall_seconds:.1f} s ({rate:.2f} clouds/s, '
-        f'{result.workers} workers, {retries} retries)'
+        f'{result.workers} workers, {retries} retries){skipped}'
     )
     wall, cpu = result.busy_seconds
     if wall > 0:

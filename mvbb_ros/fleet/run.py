@@ -33,6 +33,7 @@ from mvbb_ros.fleet.tasks import (
     BagWorker,
     cloud_topic,
     completed_rows,
+    completed_skipped,
     Outcome,
     plan_ranges,
     remove_leftovers,
@@ -62,6 +63,8 @@ class BagReport:
     :ivar retries: how many times Ray ran one of its tasks again.
     :ivar ranges: time ranges it was cut into (1: one task).
     :ivar reruns: ranges run again because the grasp memory rebuilt at their start differed.
+    :ivar skipped: the messages skipped because they do not deserialize
+        (:func:`~mvbb_ros.fleet.tasks.skipped_entry`).
     """
 
     job: BagJob
@@ -73,6 +76,7 @@ class BagReport:
     reruns: int = 0
     seconds: float = 0.0
     cpu_seconds: float = 0.0
+    skipped: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -100,6 +104,11 @@ class FleetResult:
     def clouds(self) -> int:
         """Return the clouds processed in this run (not the resumed ones)."""
         return sum(len(r.rows) for r in self.reports if r.status == 'processed')
+
+    @property
+    def skipped(self) -> int:
+        """Return the messages skipped as corrupt in the bags of this run (not the resumed)."""
+        return sum(len(r.skipped) for r in self.reports if r.status == 'processed')
 
 
 def check_output_folder(output: Path) -> None:
@@ -188,7 +197,7 @@ class _Driver:
             elif kind == 'range':
                 ref = actor.process_range.remote(report.job, task[2])
             else:
-                ref = actor.assemble.remote(report.job, task[2], task[3])
+                ref = actor.assemble.remote(report.job, task[2], task[3], task[4])
             self.pending[ref] = (actor, task)
 
     def finish(self, report: BagReport) -> None:
@@ -216,7 +225,7 @@ class _Driver:
         if outcome.error:
             report.status, report.error = 'failed', outcome.error
         else:
-            report.rows = outcome.rows
+            report.rows, report.skipped = outcome.rows, outcome.skipped
         self.finish(report)
 
     def _range_done(self, report: BagReport, span: TimeRange, outcome: Outcome) -> None:
@@ -243,7 +252,10 @@ class _Driver:
             state['verified'] = number
         if state['verified'] + 1 == len(spans):
             rows = [row for number in range(len(spans)) for row in outcomes[number][1].rows]
-            self.queue.appendleft(('assemble', report, len(spans), rows))
+            skipped = [
+                item for number in range(len(spans)) for item in outcomes[number][1].skipped
+            ]
+            self.queue.appendleft(('assemble', report, len(spans), rows, skipped))
 
     def run(self) -> None:
         while self.queue or self.pending:
@@ -297,6 +309,7 @@ def run_fleet(
             report.status, report.error = 'failed', f'bag not found: {job.bag}'
         elif (rows := completed_rows(job)) is not None:
             report.status, report.rows = 'resumed', rows
+            report.skipped = completed_skipped(job)
         else:
             todo.append(report)
     skipped = len(reports) - len(todo)

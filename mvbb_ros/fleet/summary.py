@@ -7,7 +7,9 @@ points, objects, boxes, grasps, the top grasp's score, the pipeline's millisecon
 (why the outputs are empty, or which filter removed every grasp), the bag's retries (Ray ran a
 task again after its worker died), its time ranges and its range re-runs, and ``done_s`` (when
 the cloud was finished, seconds after the run started; empty for resumed bags). A failed bag
-has one row: its status and, in ``note``, the reason.
+has one row: its status and, in ``note``, the reason. A message skipped because it does not
+deserialize (as `bag process` skips it) has a row of its own after its bag's clouds: status
+``skipped``, its topic and bag time, and in ``note`` what the deserializer said.
 """
 
 from __future__ import annotations
@@ -99,6 +101,7 @@ def summary_rows(result: FleetResult) -> list[dict[str, Any]]:
                     ),
                 }
             )
+        rows += [{**common, **skipped, 'status': 'skipped'} for skipped in report.skipped]
     return rows
 
 
@@ -144,7 +147,7 @@ def draw_summary(rows: Sequence[dict[str, Any]], result: FleetResult, path: Path
     import matplotlib.pyplot as plt
     import numpy as np
 
-    clouds = [row for row in rows if row['status'] != 'failed']
+    clouds = [row for row in rows if row['status'] not in ('failed', 'skipped')]
     settings = sorted({row['setting'] for row in clouds}) or ['']
     figure, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     finished = [row['done_s'] for row in clouds if row.get('done_s') is not None]

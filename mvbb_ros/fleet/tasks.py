@@ -11,10 +11,16 @@ the first starts a few clouds early to rebuild that memory, and the run checks t
 it rebuilt equals the one the previous range ended with; when it does not, the range runs
 again from the previous range's memory.
 
+A message that does not deserialize as a PointCloud2 is skipped, as `bag process` skips it,
+in whichever range holds it (a warm-up skips it too and does not report it), and every task
+reports the messages it skipped (:func:`skipped_entry`). A bag whose storage fails partway
+(truncated) fails as a whole.
+
 Every output appears under its final name only when complete (atomic renames), and
-``<bag>.fleet.json`` beside the bag's folder records the settings hash and the per-cloud rows,
-so a re-run skips the bag (:func:`completed_rows`). Each attempt at a task leaves a marker in the
-staging folder (``.fleet/``), which is how the summary counts Ray's retries of a killed worker.
+``<bag>.fleet.json`` beside the bag's folder records the settings hash, the per-cloud rows and
+the skipped messages, so a re-run skips the bag (:func:`completed_rows`). Each attempt at a
+task leaves a marker in the staging folder (``.fleet/``), which is how the summary counts Ray's
+retries of a killed worker.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ from typing import Any
 from mvbb_ros.common.atomic import atomic_open
 from mvbb_ros.pipeline.process import GraspMemory
 from mvbb_ros.pipeline.settings import PipelineSettings
-from mvbb_ros.ros.bag import BagError, CloudBag
+from mvbb_ros.ros.bag import BagError, CLOUD_TYPE, CloudBag, SkippedMessage
 from mvbb_ros.ros.offline import open_output, process_bag, process_clouds, ProcessedCloud
 
 #: Name of the staging folder inside the output folder (part files, attempt markers).
@@ -113,6 +119,8 @@ class Outcome:
     :ivar start_memory: for a range: the grasp memory at its start (rebuilt), pickled.
     :ivar end_memory: for a range: the grasp memory at its end, pickled.
     :ivar worker: host and process that ran it.
+    :ivar skipped: the messages skipped because they do not deserialize
+        (:func:`skipped_entry`), in bag order.
     """
 
     rows: list[dict[str, Any]] = field(default_factory=list)
@@ -123,6 +131,21 @@ class Outcome:
     start_memory: bytes = b''
     end_memory: bytes = b''
     worker: str = ''
+    skipped: list[dict[str, Any]] = field(default_factory=list)
+
+
+def skipped_entry(message: SkippedMessage) -> dict[str, Any]:
+    """
+    Return a skipped message as the fleet reports it: topic, bag time and why.
+
+    Its number among the topic's messages is left out: a time range does not know how many
+    messages come before it. The bag time names it.
+    """
+    return {
+        'topic': message.topic,
+        'timestamp_ns': message.timestamp_ns,
+        'note': f'skipped: does not deserialize as {CLOUD_TYPE}: {message.reason}',
+    }
 
 
 def _input_identity(path: Path) -> list[Any]:
@@ -151,25 +174,40 @@ def settings_digest(bag: Path, settings: PipelineSettings, options: dict[str, An
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def completed_rows(job: BagJob) -> list[dict[str, Any]] | None:
-    """Return the rows of a complete earlier output with the same settings hash, else None."""
+def _completed(job: BagJob) -> dict[str, Any] | None:
     try:
         document = json.loads(job.manifest.read_text())
     except (OSError, ValueError):
         return None
     if document.get('digest') != job.digest or not (job.output / 'metadata.yaml').is_file():
         return None
-    rows = document.get('rows')
+    return document if isinstance(document, dict) else None
+
+
+def completed_rows(job: BagJob) -> list[dict[str, Any]] | None:
+    """Return the rows of a complete earlier output with the same settings hash, else None."""
+    document = _completed(job)
+    rows = None if document is None else document.get('rows')
     return rows if isinstance(rows, list) else None
 
 
-def write_manifest(job: BagJob, rows: Sequence[dict[str, Any]]) -> None:
+def completed_skipped(job: BagJob) -> list[dict[str, Any]]:
+    """Return the messages a complete earlier output skipped (:func:`skipped_entry`)."""
+    document = _completed(job)
+    skipped = None if document is None else document.get('skipped')
+    return skipped if isinstance(skipped, list) else []
+
+
+def write_manifest(
+    job: BagJob, rows: Sequence[dict[str, Any]], skipped: Sequence[dict[str, Any]] = ()
+) -> None:
     """Record that `job`'s output is complete (after it is in place), with its rows."""
     document = {
         'bag': str(job.bag),
         'setting': job.label,
         'digest': job.digest,
         'rows': list(rows),
+        'skipped': list(skipped),
     }
     with atomic_open(job.manifest) as handle:
         json.dump(document, handle, default=_json_float)
@@ -300,11 +338,12 @@ class BagWorker:
                 job.output,
                 settings=job.settings,
                 force=True,  # an output without a manifest: a run stopped after the rename
-                skip_corrupt=False,  # as the ranges of a long bag: a corrupt message fails it
+                keep_on_storage_error=False,  # as the ranges of a long bag: a truncated bag fails
                 on_cloud=lambda row, cloud, result: rows.append(_row(row)),
+                on_skip=lambda message: outcome.skipped.append(skipped_entry(message)),
                 **options,
             )
-            write_manifest(job, rows)
+            write_manifest(job, rows, outcome.skipped)
             outcome.rows = rows
         return outcome
 
@@ -333,6 +372,7 @@ class BagWorker:
                         namespace=namespace,
                         start_ns=span.warmup_ns,
                         stop_ns=span.start_ns,
+                        on_skip=lambda message: None,  # the previous range reports it
                     )
                     for _ in warmup:
                         pass
@@ -346,6 +386,7 @@ class BagWorker:
                     namespace=namespace,
                     start_ns=span.start_ns,
                     stop_ns=span.stop_ns,
+                    on_skip=lambda message: outcome.skipped.append(skipped_entry(message)),
                 ):
                     messages += written
                     outcome.rows.append(_row(row))
@@ -359,8 +400,19 @@ class BagWorker:
         """Return the part file of range `number` of `job`."""
         return job.staging / f'range-{number:05d}.part'
 
-    def assemble(self, job: BagJob, ranges: int, rows: list[dict[str, Any]]) -> Outcome:
-        """Write the bag from its ranges' part files, in order, with `process_bag`'s writer."""
+    def assemble(
+        self,
+        job: BagJob,
+        ranges: int,
+        rows: list[dict[str, Any]],
+        skipped: Sequence[dict[str, Any]] = (),
+    ) -> Outcome:
+        """
+        Write the bag from its ranges' part files, in order, with `process_bag`'s writer.
+
+        :param rows: the ranges' rows, in order (renumbered here).
+        :param skipped: the messages the ranges skipped, in order (kept in the manifest).
+        """
         with _reported(Outcome(worker=self.identity)) as outcome:
             outcome.attempts = _claim_attempt(job.staging, 'assemble')
             settings, options = job.settings, job.options
@@ -380,6 +432,6 @@ class BagWorker:
                         for message in pickle.load(handle):
                             out.write(*message)
             rows = [dict(row, index=index) for index, row in enumerate(rows)]
-            write_manifest(job, rows)
-            outcome.rows = rows
+            write_manifest(job, rows, skipped)
+            outcome.rows, outcome.skipped = rows, list(skipped)
         return outcome

@@ -11,10 +11,15 @@ player (:mod:`mvbb_ros.ros.bag_play`) publishes those bytes as they are and the 
 offline tool all see the same messages. :class:`BagWriter` writes CDR messages into a new
 rosbag2 (MCAP or sqlite3).
 
-Problems with the input (a missing, truncated or unreadable bag, no PointCloud2, an unknown
-topic) raise :class:`BagError` with a message meant for the user. A message the storage gives
-but that does not deserialize as a PointCloud2 (corrupt bytes) is either skipped and described
-by a :class:`SkippedMessage` (when the reader asks for that) or a :class:`BagError`.
+Problems with the input (a missing or unreadable bag, no PointCloud2, an unknown topic) raise
+:class:`BagError` with a message meant for the user. A rosbag2 whose storage file is cut short
+(so that ``rosbags`` cannot open it) is read without its index
+(:class:`mvbb_ros.ros.salvage.SalvageReader`): its messages come in recording order up to the
+first one that is not wholly in the file, and there, as anywhere the storage fails partway,
+:class:`BagStorageError` (a :class:`BagError`) says where; the clouds read before it are good.
+A message the storage gives but that does not deserialize as a PointCloud2 (corrupt bytes) is
+either skipped and described by a :class:`SkippedMessage` (when the reader asks for that) or a
+:class:`BagError`.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from typing import Any, Final
 from builtin_interfaces.msg import Time
 from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.ros.encode import create_cloud_xyz, to_rclpy_cloud
+from mvbb_ros.ros.salvage import SalvageReader, storage_kind
 from numpy.typing import ArrayLike
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.highlevel import AnyReader
@@ -48,6 +54,20 @@ STORAGE_FORMATS = ('mcap', 'sqlite3')
 
 class BagError(Exception):
     """A bag cannot be used: the message says which bag and why."""
+
+
+class BagStorageError(BagError):
+    """
+    The bag's storage stopped giving messages partway (truncated or corrupt storage).
+
+    The clouds read before it are whole: a reader may keep what it made of them.
+
+    :ivar read: the messages read on the requested topics before the storage failed.
+    """
+
+    def __init__(self, message: str, read: int) -> None:
+        super().__init__(message)
+        self.read = read
 
 
 # Reading ----------------------------------------------------------------------------------------
@@ -164,15 +184,28 @@ class CloudBag:
             raise BagError(f'bag not found: {self.path}')
         if self.path.is_dir() and not (self.path / 'metadata.yaml').exists():
             raise BagError(f'{self.path} is not a rosbag2 bag: the directory has no metadata.yaml')
+        reader: Any
         try:
             reader = AnyReader([self.path], default_typestore=jazzy_typestore())
             reader.open()
         except Exception as error:  # rosbags, sqlite3 and YAML each raise their own errors
-            raise BagError(
-                f'cannot read bag {self.path} (truncated, corrupt or not a bag?): '
-                f'{_describe(error)}'
-            ) from error
+            reader = self._salvage()
+            if reader is None:
+                raise BagError(
+                    f'cannot read bag {self.path} (truncated, corrupt or not a bag?): '
+                    f'{_describe(error)}'
+                ) from error
         self._reader = reader
+
+    def _salvage(self) -> SalvageReader | None:
+        """Return a reader of a rosbag2 whose storage is cut short, or None for other failures."""
+        if not self.path.is_dir() and not storage_kind(self.path):
+            return None
+        try:
+            reader = SalvageReader(self.path)
+        except Exception:  # not a rosbag2 this reader knows: the first error is the one to tell
+            return None
+        return reader if reader.cut else None
 
     def close(self) -> None:
         """Close the bag (no-op when it is not open)."""
@@ -272,9 +305,10 @@ class CloudBag:
         that does not deserialize is passed to `on_skip` and skipped, or raises when `on_skip`
         is None.
 
-        :raises BagError: when the storage cannot give a message, when fewer messages can be
-            read than the bag's index lists (a truncated bag; checked when reading all of it),
-            or when a message does not deserialize and `on_skip` is None.
+        :raises BagStorageError: when the storage cannot give a message (cut short or corrupt),
+            or when fewer messages can be read than the bag's index lists (checked when
+            reading all of it); the clouds yielded before are good.
+        :raises BagError: when a message does not deserialize and `on_skip` is None.
         """
         reader = self.reader
         wanted = set(topics)
@@ -292,9 +326,10 @@ class CloudBag:
             try:
                 item = next(messages, None)
             except Exception as error:  # storage errors: nothing after this can be read
-                raise BagError(
-                    f'cannot read message {seen + 1} of bag {self.path} '
-                    f'(truncated or corrupt?): {_describe(error)}'
+                raise BagStorageError(
+                    f'cannot read bag {self.path} past message {seen} on {", ".join(topics)} '
+                    f'(truncated or corrupt?): {_describe(error)}',
+                    seen,
                 ) from error
             if item is None:
                 break
@@ -319,9 +354,10 @@ class CloudBag:
                 continue
             yield BagCloud(topic=topic, timestamp_ns=int(timestamp), cdr=cdr, cloud=cloud)
         if seen < expected:
-            raise BagError(
+            raise BagStorageError(
                 f'bag {self.path} is truncated: its index lists {expected} messages on '
-                f'{", ".join(topics)}, but only {seen} could be read'
+                f'{", ".join(topics)}, but only {seen} could be read',
+                seen,
             )
 
 

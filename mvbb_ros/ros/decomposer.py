@@ -16,7 +16,10 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 import gc
+import os
+from pathlib import Path
 import sys
+import tempfile
 
 import rclpy
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -41,6 +44,28 @@ options:
 
 parameters (-p NAME:=VALUE; the node's defaults, as in config/decomposer.yaml):
 """
+
+
+def ros_log_fallback(environment: dict[str, str] | None = None) -> tuple[Path, Path] | None:
+    """
+    Return ``(ROS's log folder, a writable one)`` when ROS's cannot be written, else None.
+
+    rcl writes its log files under ``ROS_LOG_DIR``, else ``$ROS_HOME/log``, else
+    ``~/.ros/log``, and refuses to start when that folder cannot be made (a read-only HOME, as
+    in a read-only container). When the user chose no folder (no ``ROS_LOG_DIR``) and ROS's
+    cannot be written, the node logs to a folder of its own under the temporary folder instead.
+    """
+    env = os.environ if environment is None else environment
+    if env.get('ROS_LOG_DIR'):
+        return None
+    home = env.get('ROS_HOME') or str(Path(env.get('HOME') or Path.home()) / '.ros')
+    folder = Path(home).expanduser() / 'log'
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            return None
+    except OSError:
+        return folder, Path(tempfile.gettempdir()) / f'ros_log_{os.getuid()}'
 
 
 def wants_help(args: Sequence[str]) -> bool:
@@ -80,6 +105,14 @@ def main(args: Sequence[str] | None = None) -> int:
     if wants_help(arguments[1:] if args is None else arguments):
         print(usage(), end='')
         return 0
+    fallback = ros_log_fallback()
+    if fallback is not None:  # rcl would stop at init; the node can run without that folder
+        os.environ['ROS_LOG_DIR'] = str(fallback[1])
+        print(
+            f'decomposer: cannot write ROS log files in {fallback[0]} (read-only?); writing them '
+            f'in {fallback[1]} (set ROS_LOG_DIR to choose)',
+            file=sys.stderr,
+        )
     try:
         with ros_context(arguments):
             return _run(arguments)

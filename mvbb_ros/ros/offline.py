@@ -6,10 +6,12 @@ writes :func:`mvbb_ros.ros.messages.output_messages` (what the node publishes) i
 rosbag2 at the input's timestamps, optionally with the input clouds, so the result plays in RViz
 (``ros2 bag play``) or Foxglove. The output is written into a temporary directory beside it and
 renamed into place only when complete (:func:`mvbb_ros.common.atomic.atomic_path`): a failure
-leaves nothing behind. A message that does not deserialize as a PointCloud2 (corrupt bytes) is
-skipped, and listed in the summary (:attr:`ProcessSummary.skipped`); the other clouds are
-processed and written as usual. :func:`format_row` and :func:`format_totals` make the table that
-`mvbb bag process` prints.
+leaves nothing behind, but for one: when the bag's storage fails partway (a file cut short, an
+index that lists more messages than it holds), the output holds the clouds processed before
+that point and :attr:`ProcessSummary.storage_error` says where. A message that does not
+deserialize as a PointCloud2 (corrupt bytes) is skipped, and listed in the summary
+(:attr:`ProcessSummary.skipped`); the other clouds are processed and written as usual.
+:func:`format_row` and :func:`format_totals` make the table that `mvbb bag process` prints.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.bag import (
     BagError,
+    BagStorageError,
     BagWriter,
     CLOUD_TYPE,
     CloudBag,
@@ -91,6 +94,8 @@ class ProcessSummary:
     :ivar skipped: the messages skipped because they do not deserialize, in bag order.
     :ivar topics: output topic -> messages written.
     :ivar wall_seconds: wall-clock time of the whole run (reading, processing, writing).
+    :ivar storage_error: where the bag's storage failed partway ('' when it did not); the
+        output then holds the clouds before that point.
     """
 
     input_path: Path
@@ -100,6 +105,7 @@ class ProcessSummary:
     skipped: list[SkippedMessage] = field(default_factory=list)
     topics: dict[str, int] = field(default_factory=dict)
     wall_seconds: float = 0.0
+    storage_error: str = ''
 
     @property
     def clouds(self) -> int:
@@ -327,6 +333,7 @@ def process_bag(
     on_cloud: CloudCallback | None = None,
     on_skip: Callable[[SkippedMessage], None] | None = None,
     skip_corrupt: bool = True,
+    keep_on_storage_error: bool = True,
 ) -> ProcessSummary:
     """
     Run the node's pipeline on every cloud of a bag and write the outputs into a new rosbag2.
@@ -337,7 +344,10 @@ def process_bag(
     with `with_input` the cloud itself is written first, on its own topic. Every cloud gives
     one message per output topic, also when the outputs are cleared (bad cloud). A message
     that does not deserialize as a PointCloud2 gives no outputs: it is skipped and listed in
-    :attr:`ProcessSummary.skipped`, and the run goes on.
+    :attr:`ProcessSummary.skipped`, and the run goes on. When the storage fails partway
+    (:class:`~mvbb_ros.ros.bag.BagStorageError`: a truncated file, an index that lists more
+    messages than the bag holds), the clouds processed before are written as a complete bag
+    and :attr:`ProcessSummary.storage_error` says where the storage failed.
 
     :param input_path: any bag :class:`CloudBag` reads.
     :param output_path: the rosbag2 directory to write; written atomically.
@@ -352,10 +362,14 @@ def process_bag(
     :param on_cloud: called after each cloud (for tables, progress and pictures).
     :param on_skip: called with each skipped message, when it is skipped.
     :param skip_corrupt: skip messages that do not deserialize; False: such a message is a
-        :class:`~mvbb_ros.ros.bag.BagError` and nothing is written (the fleet's choice).
+        :class:`~mvbb_ros.ros.bag.BagError` and nothing is written.
+    :param keep_on_storage_error: write the clouds before a storage failure; False: the
+        :class:`~mvbb_ros.ros.bag.BagStorageError` is raised and nothing is written (the
+        fleet's choice: its long bags run in time ranges, which cannot stop at the break).
     :return: the per-cloud rows and totals.
-    :raises BagError: for a bad input bag or topic, an output that exists, or (without
-        `skip_corrupt`) a message that does not deserialize; nothing is written then.
+    :raises BagError: for a bad input bag or topic, an output that exists, (without
+        `skip_corrupt`) a message that does not deserialize, or (without
+        `keep_on_storage_error`) a storage failure; nothing is written then.
     """
     settings = settings if settings is not None else PipelineSettings()
     source, target = Path(input_path), Path(output_path)
@@ -384,7 +398,7 @@ def process_bag(
                 if on_skip is not None:
                     on_skip(message)
 
-            for row, messages, cloud, result in process_clouds(
+            processed = process_clouds(
                 bag,
                 cloud_topic,
                 settings,
@@ -392,12 +406,18 @@ def process_bag(
                 with_input=with_input,
                 namespace=namespace,
                 on_skip=skip if skip_corrupt else None,
-            ):
-                for message in messages:
-                    out.write(*message)
-                summary.rows.append(row)
-                if on_cloud is not None:
-                    on_cloud(row, cloud, result)
+            )
+            try:
+                for row, messages, cloud, result in processed:
+                    for message in messages:
+                        out.write(*message)
+                    summary.rows.append(row)
+                    if on_cloud is not None:
+                        on_cloud(row, cloud, result)
+            except BagStorageError as error:  # keep what came before: those clouds are whole
+                if not keep_on_storage_error:
+                    raise
+                summary.storage_error = str(error)
             summary.topics = dict(out.counts)
     summary.wall_seconds = time.perf_counter() - start
     return summary

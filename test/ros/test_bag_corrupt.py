@@ -244,4 +244,4 @@ def test_without_skipping_a_corrupt_message_fails_and_writes_nothing(tmp_path, c
             settings=settings_from_mapping(FAST),
             skip_corrupt=False,
         )
-    assert list(results.iterdir()) == [], 'the fleet fails such a bag, nothing half-written'
+    assert list(results.iterdir()) == [], 'nothing half-written'

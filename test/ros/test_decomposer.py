@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
+import time
 
 from mvbb_ros.pipeline.settings import defaults, SPECS
-from mvbb_ros.ros.decomposer import main, wants_help
+from mvbb_ros.ros.decomposer import main, ros_log_fallback, wants_help
 import pytest
 import rclpy
 
@@ -39,3 +42,46 @@ def test_installed_decomposer_help_exits_zero():
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith('usage: decomposer')
+
+
+def test_ros_log_fallback_only_when_ros_cannot_write_its_own_folder(tmp_path):
+    blocked = tmp_path / 'a_file'
+    blocked.write_text('HOME below a file: nothing can be made there, even as root')
+    found = ros_log_fallback({'HOME': str(blocked / 'home')})
+    assert found is not None and found[0] == blocked / 'home' / '.ros' / 'log'
+    assert ros_log_fallback({'HOME': str(tmp_path / 'home')}) is None
+    assert (tmp_path / 'home' / '.ros' / 'log').is_dir()
+    assert ros_log_fallback({'HOME': str(blocked), 'ROS_LOG_DIR': str(tmp_path)}) is None
+    assert ros_log_fallback({'HOME': str(blocked), 'ROS_HOME': str(tmp_path / 'ros')}) is None
+
+
+def test_the_node_starts_with_a_home_it_cannot_write(tmp_path):
+    """A read-only HOME (a read-only container) stopped rcl at init; the node logs elsewhere."""
+    blocked = tmp_path / 'a_file'
+    blocked.write_text('')
+    env = {k: v for k, v in os.environ.items() if k not in ('ROS_LOG_DIR', 'ROS_HOME')}
+    env.update(HOME=str(blocked / 'home'), PYTHONUNBUFFERED='1')
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'mvbb_ros.ros.decomposer'],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    try:
+        lines = []
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline:
+            line = process.stdout.readline()
+            lines.append(line)
+            if 'publishing on' in line or (not line and process.poll() is not None):
+                break
+        assert 'publishing on' in lines[-1], ''.join(lines)
+        process.send_signal(signal.SIGINT)
+        rest, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    output = ''.join(lines) + rest
+    assert process.returncode == 0, output
+    assert output.count('cannot write ROS log files in') == 1 and 'Traceback' not in output

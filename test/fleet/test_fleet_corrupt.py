@@ -1,0 +1,106 @@
+"""
+`mvbb fleet` skips the messages that do not deserialize as `mvbb bag process` does.
+
+Two bags with spoiled messages (bytes cut short, random bytes): one long enough to be cut into
+time ranges (its ranges rebuild the grasp memory, and a spoiled message falls in a warm-up),
+one processed whole. Each output must hold the bytes a serial `bag process` writes, and the
+summary must name every skipped message once. One embedded Ray run, one worker.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import filecmp
+import io
+from pathlib import Path
+
+from mvbb_ros.cli.main import main
+from mvbb_ros.ros.encode import create_cloud_xyz
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import get_typestore, Stores
+from support.shapes import l_shape_points
+
+JAZZY = get_typestore(Stores.ROS2_JAZZY)
+TOPIC = '/camera/segmented'
+CLOUD = 'sensor_msgs/msg/PointCloud2'
+#: name -> (messages, {position: how it is spoiled}, storage).
+BAGS = {
+    'ranged': (7, {2: 'cut short', 5: 'random bytes'}, 'mcap'),
+    'whole': (3, {1: 'random bytes'}, 'sqlite3'),
+}
+#: Clouds per time range: the 7-message bag is cut into 3 ranges, the 3-message one is not.
+RANGE_CLOUDS = 3
+
+
+def _stamp(position: int) -> int:
+    return 1_000_000_000 * (10 + position)
+
+
+def _write_bag(path: Path, messages: int, spoiled: dict[int, str], storage: str) -> Path:
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    with Writer(path, version=8, storage_plugin=plugin) as writer:
+        connection = writer.add_connection(TOPIC, CLOUD, typestore=JAZZY)
+        for position in range(messages):
+            cloud = create_cloud_xyz(l_shape_points(seed=position, count=400), frame_id='cam')
+            cloud.header.stamp.sec = 100 + position
+            raw = serialize_message(cloud)
+            if spoiled.get(position) == 'cut short':
+                raw = raw[: len(raw) // 2]
+            elif spoiled.get(position) == 'random bytes':
+                rng = np.random.default_rng(position)
+                raw = rng.integers(0, 256, 400, dtype=np.uint8).tobytes()
+            writer.write(connection, _stamp(position), raw)
+    return path
+
+
+def _same_tree(left: Path, right: Path) -> bool:
+    names = sorted(path.name for path in left.iterdir())
+    if names != sorted(path.name for path in right.iterdir()):
+        return False
+    return all(filecmp.cmp(left / name, right / name, shallow=False) for name in names)
+
+
+@pytest.fixture(scope='module')
+def runs(tmp_path_factory):
+    """Write the bags, run `bag process` on each, then one fleet run over both."""
+    folder = tmp_path_factory.mktemp('corrupt_fleet')
+    bags = {name: _write_bag(folder / name, *spec) for name, spec in BAGS.items()}
+    serial: dict[str, Path] = {}
+    for name, bag in bags.items():
+        serial[name] = folder / 'serial' / name
+        assert main(['bag', 'process', str(bag), str(serial[name]), '--quiet']) == 0
+    output = folder / 'fleet'
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(
+            ['fleet', *(str(bag) for bag in bags.values()), '--output', str(output)]
+            + ['--workers', '1', '--clouds-per-range', str(RANGE_CLOUDS), '--no-picture']
+        )
+    return serial, output, code, printed.getvalue()
+
+
+def test_fleet_skips_corrupt_messages_with_the_bytes_of_bag_process(runs):
+    serial, output, code, out = runs
+    assert code == 0, out
+    for name, reference in serial.items():
+        assert _same_tree(output / name, reference), f'{name} differs from serial bag process'
+    rows = pq.read_table(output / 'summary.parquet').to_pylist()
+    assert {row['ranges'] for row in rows if row['bag'] == 'ranged'} == {3}
+    assert {row['ranges'] for row in rows if row['bag'] == 'whole'} == {1}
+    for name, (messages, spoiled, _) in BAGS.items():
+        clouds = [row for row in rows if row['bag'] == name and row['status'] == 'processed']
+        assert [row['timestamp_ns'] for row in clouds] == [
+            _stamp(p) for p in range(messages) if p not in spoiled
+        ]
+        assert [row['index'] for row in clouds] == list(range(messages - len(spoiled)))
+        skipped = [row for row in rows if row['bag'] == name and row['status'] == 'skipped']
+        assert [(row['topic'], row['timestamp_ns']) for row in skipped] == [
+            (TOPIC, _stamp(p)) for p in sorted(spoiled)
+        ], 'each skipped message named once, by bag time, also when it falls in a warm-up'
+        assert all(row['note'].startswith('skipped: does not deserialize') for row in skipped)
+    total = sum(len(spec[1]) for spec in BAGS.values())
+    assert f'skipped {total} messages that do not deserialize' in out
