@@ -47,12 +47,15 @@ class ObjectResult:
     :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
         points are ``shape.points``, observed first.
     :ivar decomposition: the fit-and-split tree of ``shape.points``.
+    :ivar support_floor: the height along the up direction of the table the object rests on
+        (from the support plane), or None when no plane was found under it.
     """
 
     index: int
     point_indices: IndexArray
     shape: CompletedView
     decomposition: Decomposition
+    support_floor: float | None = None
 
     @property
     def leaf_observed_counts(self) -> list[int]:
@@ -433,13 +436,14 @@ def process_points(
     for index, members in enumerate(groups):
         start = time.perf_counter()
         observed = standing[members]
+        floor = None if support is None or up is None else resting_floor(observed, support, up)
         shape = complete_view(
             observed,
             method=view.completion,
             viewpoint=view.viewpoint,
             up=up,
             spacing=spacing,
-            floor=None if support is None or up is None else resting_floor(observed, support, up),
+            floor=floor,
         )
         timings['completion'] += (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
@@ -447,7 +451,7 @@ def process_points(
         timings['decompose'] += (time.perf_counter() - start) * 1e3
         if support is not None:
             members = kept[members]
-        objects.append(ObjectResult(index, members, shape, decomposition))
+        objects.append(ObjectResult(index, members, shape, decomposition, floor))
 
     start = time.perf_counter()
     result = empty(None)
@@ -530,14 +534,9 @@ def grasp_view(settings: PipelineSettings, up: ArrayLike | None) -> GraspView:
         viewpoint=np.asarray(view.viewpoint, dtype=np.float64),
         far_side=grasps.far_side,
         max_approach_elevation_deg=grasps.max_approach_elevation_deg,
-        support_clearance=SUPPORT_CLEARANCE,
+        support_clearance=settings.refinement.support_clearance,
         max_grasps=grasps.max_grasps,
     )
-
-
-#: Refined grasps keep their pads this far above the object's lowest point (metres) when the up
-#: direction is known: the object stands on something there.
-SUPPORT_CLEARANCE = 0.005
 
 
 def object_surface(item: ObjectResult, spacing: float, up: ArrayLike | None) -> SurfaceModel:
@@ -552,7 +551,9 @@ def object_surface(item: ObjectResult, spacing: float, up: ArrayLike | None) -> 
     if shape.method == 'none' and item.decomposition.leaves:
         filled = [box_samples(box, spacing) for box in item.decomposition.leaves]
         points = np.concatenate([points, *filled])
-    return surface_model(points, observed=shape.observed, cell=spacing, up=up)
+    return surface_model(
+        points, observed=shape.observed, cell=spacing, up=up, support_floor=item.support_floor
+    )
 
 
 #: The most samples of one box's volume (coarser beyond).

@@ -547,6 +547,16 @@ SPECS: tuple[SettingSpec, ...] = (
         node_default=0.06,
     ),
     SettingSpec(
+        'support_clearance',
+        RefinementSettings,
+        float,
+        'With an up direction, the lowest point of the open fingers and the palm stays this '
+        'far above the support, metres: the table when the scene stage found it, else the '
+        "object's observed base (its lowest 1 % of points).",
+        (0.0, 0.1),
+        node_default=0.0,
+    ),
+    SettingSpec(
         'grasp_width_margin',
         RefinementSettings,
         float,

@@ -23,6 +23,8 @@ DEFAULT_FRICTION = 0.5
 DEFAULT_WIDTH_MARGIN = 0.01
 DEFAULT_HYSTERESIS = 0.3
 DEFAULT_PREFERENCE = 0.1
+#: The pad model keeps its pads this far above the support (metres).
+DEFAULT_SUPPORT_CLEARANCE = 0.005
 #: Finger depths tried, as fractions of the finger depth (the deepest is the finger depth).
 DEPTH_FRACTIONS: tuple[float, ...] = (1.0 / 3.0, 2.0 / 3.0, 1.0)
 
@@ -54,6 +56,9 @@ class RefinementSettings:
         the fingers but the points between them).
     :ivar palm_depth: depth of the palm across the closing direction.
     :ivar palm_height: height of the palm along the approach (behind the fingers).
+    :ivar support_clearance: with `up`, the fingers' and the palm's lowest point stays this far
+        above the support (metres): the table when the scene stage found it, else the object's
+        observed base.
     """
 
     enabled: bool = False
@@ -69,6 +74,7 @@ class RefinementSettings:
     palm_width: float = 0.0
     palm_depth: float = 0.0
     palm_height: float = 0.0
+    support_clearance: float = DEFAULT_SUPPORT_CLEARANCE
 
     def __post_init__(self) -> None:
         for name in (
@@ -80,6 +86,7 @@ class RefinementSettings:
             'palm_width',
             'palm_depth',
             'palm_height',
+            'support_clearance',
         ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
@@ -106,7 +113,8 @@ class GraspView:
     :ivar far_side: allow approaches from the far side of the object (seen from the viewpoint).
     :ivar max_approach_elevation_deg: approaches rising more than this above the horizontal
         are removed (with `up`).
-    :ivar support_clearance: the pads stay this far above the object's lowest point (with `up`).
+    :ivar support_clearance: with `up`, the hand's lowest point stays this far above the
+        support (:attr:`RefinementSettings.support_clearance`).
     :ivar max_grasps: at most this many grasps (0: all distinct ones).
     """
 

@@ -40,6 +40,10 @@ MAX_REACH = 4
 #: without the rule); with both, 0.05 % and 3. 0.05 (every edge) cost Figure 6's flask its best
 #: grasp (85 %).
 EDGE_VARIATION = 0.12
+#: Without a table, an object's floor (the support it stands on) is the height along up below
+#: which this share of its observed points lies: its observed base, robust to the sensor's
+#: noise (the lowest point alone lies a few noise widths below the surface it belongs to).
+FLOOR_QUANTILE = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,8 +56,8 @@ class SurfaceModel:
         where too few neighbours and on edges, :data:`EDGE_VARIATION`).
     :ivar weights: (K,) 1 for a cell with an observed point, :data:`ESTIMATED_WEIGHT` otherwise.
     :ivar cell: the grid's cell size.
-    :ivar floor: the object's lowest height along `up` (the support it stands on); -inf when up
-        is unknown.
+    :ivar floor: the height along `up` of the support the object stands on (the table when
+        known, else the observed base, :data:`FLOOR_QUANTILE`); -inf when up is unknown.
     :ivar center: (3,) the mean of the observed points.
     """
 
@@ -328,6 +332,7 @@ def surface_model(
     observed: int | None = None,
     cell: float,
     up: ArrayLike | None = None,
+    support_floor: float | None = None,
 ) -> SurfaceModel:
     """
     Return the surface of one object's points: the boundary cells of their occupancy grid.
@@ -340,7 +345,9 @@ def surface_model(
     :param points: (N, 3) the object's points, N >= 1.
     :param observed: how many of the first points were observed (default all).
     :param cell: the grid's cell size (the point spacing), > 0; coarser for very large objects.
-    :param up: the up direction, or None: the model's floor is its lowest point along up.
+    :param up: the up direction, or None (no floor).
+    :param support_floor: with `up`, the height along unit `up` of the table the object rests
+        on, when known; else the floor is the observed points' :data:`FLOOR_QUANTILE` height.
     :return: the surface model.
     """
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -355,10 +362,14 @@ def surface_model(
     low = column_min(pts) - margin * cell
     centroids, weights = _surface_cells(pts, low, float(cell), seen, margin)
     normals = _pca_normals(np.ascontiguousarray(centroids), NORMAL_CELLS * cell)
-    floor = -math.inf
-    if up is not None:
+    if up is None:
+        floor = -math.inf
+    elif support_floor is None:
         unit_up = np.asarray(up, dtype=np.float64)
-        floor = float(np.min(pts @ (unit_up / np.linalg.norm(unit_up))))
+        heights = pts[: max(seen, 1)] @ (unit_up / np.linalg.norm(unit_up))
+        floor = float(np.quantile(heights, FLOOR_QUANTILE))
+    else:
+        floor = float(support_floor)
     center = pts[: max(seen, 1)].mean(axis=0)
     return SurfaceModel(centroids, normals, weights, float(cell), floor, center)
 

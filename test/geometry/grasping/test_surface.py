@@ -247,3 +247,26 @@ def test_the_hand_placed_on_the_band_near_the_first_contact_is_the_one_on_the_wh
     np.testing.assert_array_equal(
         rows[1], evaluate_lines(model, origins, approaches, closings, ON, view)
     )
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), outliers=st.integers(1, 5), depth=st.floats(0.005, 0.05))
+def test_the_floor_is_the_observed_base_whatever_a_few_noisy_points_below_it(
+    seed, outliers, depth
+):
+    """A few points below an object's base (sensor noise) leave its floor at the base."""
+    rng = np.random.default_rng(seed)
+    # A 6 x 6 x 3 cm box's observed surface (top and two sides), its base at z = 0.
+    top = np.column_stack([rng.uniform(0, 0.06, (900, 2)), np.full(900, 0.03)])
+    side = np.column_stack([rng.uniform(0, 0.06, 600), np.zeros(600), rng.uniform(0, 0.03, 600)])
+    front = side[:, [1, 0, 2]]
+    low = np.column_stack([rng.uniform(0, 0.06, (outliers, 2)), np.full(outliers, -depth)])
+    observed = np.concatenate([top, side, front, low])
+    hidden = observed[:300] - [0.0, 0.0, 0.1]  # estimated points never lower the floor
+    model = surface.surface_model(
+        np.concatenate([observed, hidden]), observed=len(observed), cell=0.005, up=(0, 0, 1)
+    )
+    assert 0.0 <= model.floor <= 0.002
+    table = surface.surface_model(observed, cell=0.005, up=(0, 0, 1), support_floor=-0.004)
+    assert table.floor == -0.004
+    assert surface.surface_model(observed, cell=0.005).floor == -math.inf
