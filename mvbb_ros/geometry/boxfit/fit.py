@@ -38,11 +38,11 @@ the thinnest direction on the 2D hulls of all points, is a candidate as well. Ex
 
 Compiled code: the kernels (names ending in ``_kernel``) are numba functions with ``cache=True``
 and ``nogil=True`` (they release the GIL while they run, so that a node's executor thread answers
-its services during a frame); the helpers they call are compiled into them and not cached on
-their own (fewer cache files, a quicker warm start). Kernels take C-contiguous float64 arrays and int64 knobs; their wrappers
-(:func:`fit_box`, :func:`minimum_bounding_box`) check and convert the input, so one
-specialisation per kernel is compiled and cached. A kernel's cache is refreshed when any module
-it calls into changes (:mod:`mvbb_ros.kernel_cache`).
+its services during a frame); the helpers they call are compiled into them and not cached on their
+own (fewer cache files, a quicker warm start). Kernels take C-contiguous float64 arrays and int64
+knobs; their wrappers (:func:`fit_box`, :func:`minimum_bounding_box`) check and convert the input,
+so one specialisation per kernel is compiled and cached. A kernel's cache is refreshed when any
+module it calls into changes (:mod:`mvbb_ros.kernel_cache`).
 """
 
 from __future__ import annotations
