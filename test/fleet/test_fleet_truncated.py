@@ -7,17 +7,24 @@ and a whole MCAP bag whose index (metadata.yaml) lists two more messages than it
 cut into time ranges and must be run again as one task. Each output must hold the bytes a serial
 `bag process` writes (which keeps the clouds before the break and exits 1), the summary must say
 where the storage failed, and the run must exit 1 with one `truncated:` line per bag, also when
-a second run resumes the outputs. One embedded Ray run, one worker.
+a second run resumes the outputs. One embedded Ray run, one worker. The driver's choice for a
+bag cut into ranges (assemble the ranges, or run the bag again as one task) is also checked on
+range outcomes made here, as a range meeting a break mid-storage gives them.
 """
 
 from __future__ import annotations
 
+from collections import deque
 import contextlib
 import filecmp
 import io
 from pathlib import Path
 
 from mvbb_ros.cli.main import main
+from mvbb_ros.common.progress import ProgressBar
+from mvbb_ros.fleet.run import _Driver, BagReport
+from mvbb_ros.fleet.tasks import BagJob, Outcome, TimeRange
+from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.encode import create_cloud_xyz
 import pyarrow.parquet as pq
 import pytest
@@ -141,3 +148,49 @@ def test_a_rerun_resumes_and_still_reports_the_truncation(runs):
     rows = pq.read_table(output / 'summary.parquet').to_pylist()
     assert {row['status'] for row in rows} == {'resumed', 'truncated'}
     assert sum(1 for row in rows if row['status'] == 'truncated') == len(BAGS)
+
+
+def _ranged_driver(count: int) -> tuple[_Driver, BagReport, list[TimeRange]]:
+    """A driver (without Ray: only its dispatch state) holding one bag cut into three ranges."""
+    driver = object.__new__(_Driver)
+    driver.queue, driver.ranges, driver.done = deque(), {}, 0
+    driver.bar = ProgressBar(1, enabled=False)
+    job = BagJob(Path('bag'), 'bag', '', Path('out/bag'), PipelineSettings(), {}, 'digest')
+    report = BagReport(job, ranges=3)
+    spans = [TimeRange(k, 10 * k, 10 * k + 10, max(0, 10 * k - 3)) for k in range(3)]
+    driver.ranges[id(report)] = {
+        'spans': spans,
+        'outcomes': {},
+        'verified': -1,
+        'failed': False,
+        'count': count,
+    }
+    return driver, report, spans
+
+
+def _range_outcome(rows: int, memory: bytes = b'm', storage_error: str = '') -> Outcome:
+    return Outcome(
+        rows=[{'index': i} for i in range(rows)],
+        start_memory=memory,
+        end_memory=memory,
+        storage_error=storage_error,
+    )
+
+
+def test_a_range_meeting_the_break_makes_the_bag_run_again_as_one_task():
+    driver, report, spans = _ranged_driver(count=9)
+    driver.handle(('range', report, spans[0]), _range_outcome(3))
+    assert not driver.queue
+    driver.handle(('range', report, spans[1]), _range_outcome(0, storage_error='cut at byte 9'))
+    assert list(driver.queue) == [('bag', report)]
+    driver.handle(('range', report, spans[2]), _range_outcome(3))  # read on past the break
+    assert list(driver.queue) == [('bag', report)], 'no assembly from ranges after a break'
+    assert report.status == 'processed' and not report.rows
+
+
+def test_ranges_reading_fewer_clouds_than_the_index_lists_run_again_as_one_task():
+    for count, queued in ((9, 'assemble'), (11, 'bag')):
+        driver, report, spans = _ranged_driver(count=count)
+        for span in spans:
+            driver.handle(('range', report, span), _range_outcome(3))
+        assert [task[0] for task in driver.queue] == [queued], count
