@@ -151,7 +151,7 @@ def test_a_rerun_resumes_and_still_reports_the_truncation(runs):
 
 
 def _ranged_driver(count: int) -> tuple[_Driver, BagReport, list[TimeRange]]:
-    """A driver (without Ray: only its dispatch state) holding one bag cut into three ranges."""
+    """Return a driver without Ray (only its dispatch state) with one bag in three ranges."""
     driver = object.__new__(_Driver)
     driver.queue, driver.ranges, driver.done = deque(), {}, 0
     driver.bar = ProgressBar(1, enabled=False)
