@@ -51,6 +51,18 @@ def test_every_cached_kernel_of_the_package_uses_the_package_locator():
     assert count >= 6
 
 
+def test_every_cached_kernel_releases_the_gil():
+    # The node runs its frames on a worker thread; a kernel holding the GIL would keep the
+    # executor thread (parameter services, diagnostics) waiting for as long as the kernel runs.
+    holding = [
+        kernel
+        for name in kernels.KERNEL_MODULES
+        for kernel, dispatcher in kernels._dispatchers(importlib.import_module(name))
+        if not dispatcher.targetoptions.get('nogil', False)
+    ]
+    assert holding == [], 'compile them with nogil=True'
+
+
 def test_the_stamp_covers_the_kernel_modules_a_module_imports():
     def covered(name: str) -> set[str]:
         path = PACKAGE / 'geometry' / f'{name}.py'

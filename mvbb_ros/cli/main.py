@@ -714,10 +714,17 @@ def _run_fleet(args: argparse.Namespace) -> int:
     for report in result.failed:
         label = f'{report.job.label}/' if report.job.label else ''
         print(f'failed: {label}{report.job.name}: {report.error}', file=sys.stderr)
+    for report in result.truncated:  # as `bag process`: the prefix is written, exit code 1
+        label = f'{report.job.label}/' if report.job.label else ''
+        print(
+            f'truncated: {label}{report.job.name}: {report.storage_error.rstrip(".")}; kept the '
+            f'{len(report.rows)} clouds before it in {report.job.output}',
+            file=sys.stderr,
+        )
     if result.summary is not None:
         written = [result.summary.parquet, result.summary.csv, result.summary.png]
         print('wrote ' + ', '.join(str(path) for path in written if path is not None))
-    return EXIT_FAILURE if result.failed else EXIT_OK
+    return EXIT_FAILURE if result.failed or result.truncated else EXIT_OK
 
 
 def _add_evaluate_command(commands: argparse._SubParsersAction) -> None:

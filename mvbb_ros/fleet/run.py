@@ -34,6 +34,7 @@ from mvbb_ros.fleet.tasks import (
     cloud_topic,
     completed_rows,
     completed_skipped,
+    completed_storage_error,
     Outcome,
     plan_ranges,
     remove_leftovers,
@@ -65,6 +66,8 @@ class BagReport:
     :ivar reruns: ranges run again because the grasp memory rebuilt at their start differed.
     :ivar skipped: the messages skipped because they do not deserialize
         (:func:`~mvbb_ros.fleet.tasks.skipped_entry`).
+    :ivar storage_error: where the bag's storage failed partway ('' when it did not); its
+        output holds the clouds before it, as `bag process` writes them.
     """
 
     job: BagJob
@@ -77,6 +80,7 @@ class BagReport:
     seconds: float = 0.0
     cpu_seconds: float = 0.0
     skipped: list[dict[str, Any]] = field(default_factory=list)
+    storage_error: str = ''
 
 
 @dataclass
@@ -93,6 +97,11 @@ class FleetResult:
     def failed(self) -> list[BagReport]:
         """Return the bags that failed."""
         return [report for report in self.reports if report.status == 'failed']
+
+    @property
+    def truncated(self) -> list[BagReport]:
+        """Return the bags whose storage failed partway (their outputs hold what came before)."""
+        return [report for report in self.reports if report.storage_error]
 
     @property
     def busy_seconds(self) -> tuple[float, float]:
@@ -226,7 +235,20 @@ class _Driver:
             report.status, report.error = 'failed', outcome.error
         else:
             report.rows, report.skipped = outcome.rows, outcome.skipped
+            report.storage_error = outcome.storage_error
         self.finish(report)
+
+    def run_whole(self, report: BagReport) -> None:
+        """
+        Give up a bag's ranges and run it as one task (its storage fails partway).
+
+        A serial `bag process` stops at the first message the storage cannot give; ranges after
+        it may read on, and one range cannot know how many clouds the others read. The whole bag
+        through `process_bag` stops where the serial run stops, with its bytes. The report keeps
+        the number of ranges it was cut into (the summary's ``ranges``).
+        """
+        self.ranges[id(report)]['failed'] = True  # outcomes of ranges still running are dropped
+        self.queue.appendleft(('bag', report))
 
     def _range_done(self, report: BagReport, span: TimeRange, outcome: Outcome) -> None:
         state = self.ranges[id(report)]
@@ -236,6 +258,9 @@ class _Driver:
             state['failed'] = True
             report.status, report.error = 'failed', outcome.error
             self.finish(report)
+            return
+        if outcome.storage_error:
+            self.run_whole(report)
             return
         state['outcomes'][span.number] = (span, outcome)
         spans, outcomes = state['spans'], state['outcomes']
@@ -255,6 +280,9 @@ class _Driver:
             skipped = [
                 item for number in range(len(spans)) for item in outcomes[number][1].skipped
             ]
+            if len(rows) + len(skipped) < state['count']:  # the index lists messages not there
+                self.run_whole(report)
+                return
             self.queue.appendleft(('assemble', report, len(spans), rows, skipped))
 
     def run(self) -> None:
@@ -310,6 +338,7 @@ def run_fleet(
         elif (rows := completed_rows(job)) is not None:
             report.status, report.rows = 'resumed', rows
             report.skipped = completed_skipped(job)
+            report.storage_error = completed_storage_error(job)
         else:
             todo.append(report)
     skipped = len(reports) - len(todo)
@@ -351,19 +380,27 @@ def run_fleet(
 
 
 def _plan(report: BagReport, driver: _Driver, clouds_per_range: int) -> None:
-    """Queue a bag as one task, or as time ranges when it is long."""
+    """Queue a bag as one task, or as time ranges when it is long and its storage whole."""
     job = report.job
     try:
         with CloudBag(job.bag) as bag:
             topic = cloud_topic(bag, job.options.get('topics', ()))
-            spans = plan_ranges(bag, topic, clouds_per_range)
+            # A storage file known to be cut short is read from its start: one task.
+            spans = [] if bag.salvaged else plan_ranges(bag, topic, clouds_per_range)
+            count = bag.count([topic])
     except BagError:
         spans = []  # the worker reports the problem, as a serial `bag process` would
     if len(spans) <= 1:
         driver.queue.append(('bag', report))
         return
     report.ranges = len(spans)
-    driver.ranges[id(report)] = {'spans': spans, 'outcomes': {}, 'verified': -1, 'failed': False}
+    driver.ranges[id(report)] = {
+        'spans': spans,
+        'outcomes': {},
+        'verified': -1,
+        'failed': False,
+        'count': count,  # the clouds the bag's index lists on the topic
+    }
     driver.queue.extend(('range', report, span) for span in spans)
 
 

@@ -1,15 +1,17 @@
 """
 The fleet summary: one row per cloud as Parquet and CSV, and a picture of the run.
 
-Columns: the sweep setting, the bag, its status (``processed``, ``resumed``, ``failed``), the
-cloud's topic, index, bag time and header stamp (nanoseconds), frame, finite and filtered
-points, objects, boxes, grasps, the top grasp's score, the pipeline's milliseconds, the note
-(why the outputs are empty, or which filter removed every grasp), the bag's retries (Ray ran a
-task again after its worker died), its time ranges and its range re-runs, and ``done_s`` (when
-the cloud was finished, seconds after the run started; empty for resumed bags). A failed bag
-has one row: its status and, in ``note``, the reason. A message skipped because it does not
-deserialize (as `bag process` skips it) has a row of its own after its bag's clouds: status
-``skipped``, its topic and bag time, and in ``note`` what the deserializer said.
+Columns: the sweep setting, the bag, its status (``processed``, ``resumed``, ``failed``,
+``skipped``, ``truncated``), the cloud's topic, index, bag time and header stamp (nanoseconds),
+frame, finite and filtered points, objects, boxes, grasps, the top grasp's score, the pipeline's
+milliseconds, the note (why the outputs are empty, or which filter removed every grasp), the bag's
+retries (Ray ran a task again after its worker died), its time ranges and its range re-runs, and
+``done_s`` (when the cloud was finished, seconds after the run started; empty for resumed bags). A
+failed bag has one row: its status and, in ``note``, the reason. A message skipped because it does
+not deserialize (as `bag process` skips it) has a row of its own after its bag's clouds: status
+``skipped``, its topic and bag time, and in ``note`` what the deserializer said. A bag whose
+storage failed partway (its output holds the clouds before the break, as `bag process` writes them)
+has a last row with status ``truncated`` and, in ``note``, where the storage failed.
 """
 
 from __future__ import annotations
@@ -102,6 +104,8 @@ def summary_rows(result: FleetResult) -> list[dict[str, Any]]:
                 }
             )
         rows += [{**common, **skipped, 'status': 'skipped'} for skipped in report.skipped]
+        if report.storage_error:
+            rows.append({**common, 'status': 'truncated', 'note': report.storage_error})
     return rows
 
 
@@ -147,7 +151,7 @@ def draw_summary(rows: Sequence[dict[str, Any]], result: FleetResult, path: Path
     import matplotlib.pyplot as plt
     import numpy as np
 
-    clouds = [row for row in rows if row['status'] not in ('failed', 'skipped')]
+    clouds = [row for row in rows if row['status'] not in ('failed', 'skipped', 'truncated')]
     settings = sorted({row['setting'] for row in clouds}) or ['']
     figure, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     finished = [row['done_s'] for row in clouds if row.get('done_s') is not None]

@@ -14,7 +14,10 @@ again from the previous range's memory.
 A message that does not deserialize as a PointCloud2 is skipped, as `bag process` skips it,
 in whichever range holds it (a warm-up skips it too and does not report it), and every task
 reports the messages it skipped (:func:`skipped_entry`). A bag whose storage fails partway
-(truncated) fails as a whole.
+(truncated) keeps the clouds before the break, as `bag process` keeps them: a whole bag through
+`process_bag` itself; for a bag cut into ranges, a range that meets the break (or ranges that
+together read fewer clouds than the bag's index lists) make the driver run the bag again as one
+task, so that its output stops where a serial run stops.
 
 Every output appears under its final name only when complete (atomic renames), and
 ``<bag>.fleet.json`` beside the bag's folder records the settings hash, the per-cloud rows and
@@ -42,7 +45,7 @@ from typing import Any
 from mvbb_ros.common.atomic import atomic_open
 from mvbb_ros.pipeline.process import GraspMemory
 from mvbb_ros.pipeline.settings import PipelineSettings
-from mvbb_ros.ros.bag import BagError, CLOUD_TYPE, CloudBag, SkippedMessage
+from mvbb_ros.ros.bag import BagError, BagStorageError, CLOUD_TYPE, CloudBag, SkippedMessage
 from mvbb_ros.ros.offline import open_output, process_bag, process_clouds, ProcessedCloud
 
 #: Name of the staging folder inside the output folder (part files, attempt markers).
@@ -121,6 +124,8 @@ class Outcome:
     :ivar worker: host and process that ran it.
     :ivar skipped: the messages skipped because they do not deserialize
         (:func:`skipped_entry`), in bag order.
+    :ivar storage_error: where the bag's storage failed partway ('' when it did not): for a
+        whole bag, its output holds the clouds before it; for a range, nothing was written.
     """
 
     rows: list[dict[str, Any]] = field(default_factory=list)
@@ -132,6 +137,7 @@ class Outcome:
     end_memory: bytes = b''
     worker: str = ''
     skipped: list[dict[str, Any]] = field(default_factory=list)
+    storage_error: str = ''
 
 
 def skipped_entry(message: SkippedMessage) -> dict[str, Any]:
@@ -198,16 +204,32 @@ def completed_skipped(job: BagJob) -> list[dict[str, Any]]:
     return skipped if isinstance(skipped, list) else []
 
 
+def completed_storage_error(job: BagJob) -> str:
+    """Return where the bag's storage failed in a complete earlier output ('' if it did not)."""
+    document = _completed(job)
+    error = None if document is None else document.get('storage_error')
+    return error if isinstance(error, str) else ''
+
+
 def write_manifest(
-    job: BagJob, rows: Sequence[dict[str, Any]], skipped: Sequence[dict[str, Any]] = ()
+    job: BagJob,
+    rows: Sequence[dict[str, Any]],
+    skipped: Sequence[dict[str, Any]] = (),
+    storage_error: str = '',
 ) -> None:
-    """Record that `job`'s output is complete (after it is in place), with its rows."""
+    """
+    Record that `job`'s output is complete (after it is in place), with its rows.
+
+    :param storage_error: where the bag's storage failed partway (the output holds the clouds
+        before it), '' when it did not.
+    """
     document = {
         'bag': str(job.bag),
         'setting': job.label,
         'digest': job.digest,
         'rows': list(rows),
         'skipped': list(skipped),
+        'storage_error': storage_error,
     }
     with atomic_open(job.manifest) as handle:
         json.dump(document, handle, default=_json_float)
@@ -326,25 +348,29 @@ class BagWorker:
         return self.identity
 
     def process(self, job: BagJob) -> Outcome:
-        """Run `mvbb bag process` on a whole bag into ``job.output``; write its manifest."""
+        """
+        Run `mvbb bag process` on a whole bag into ``job.output``; write its manifest.
+
+        A bag whose storage fails partway gives the output of the clouds before the break, as
+        `bag process` writes it, and the outcome's ``storage_error`` says where.
+        """
         with _reported(Outcome(worker=self.identity)) as outcome:
             outcome.attempts = _claim_attempt(job.staging, 'bag')
             rows: list[dict[str, Any]] = []
             options = dict(job.options)
             with CloudBag(job.bag) as bag:
                 options['topic'] = cloud_topic(bag, options.pop('topics', ()))
-            process_bag(
+            summary = process_bag(
                 job.bag,
                 job.output,
                 settings=job.settings,
                 force=True,  # an output without a manifest: a run stopped after the rename
-                keep_on_storage_error=False,  # as the ranges of a long bag: a truncated bag fails
                 on_cloud=lambda row, cloud, result: rows.append(_row(row)),
                 on_skip=lambda message: outcome.skipped.append(skipped_entry(message)),
                 **options,
             )
-            write_manifest(job, rows, outcome.skipped)
-            outcome.rows = rows
+            write_manifest(job, rows, outcome.skipped, summary.storage_error)
+            outcome.rows, outcome.storage_error = rows, summary.storage_error
         return outcome
 
     def process_range(self, job: BagJob, span: TimeRange) -> Outcome:
@@ -353,44 +379,50 @@ class BagWorker:
 
         The range starts from ``span.memory`` when given, else from the memory rebuilt by the
         warm-up clouds (whose outputs are dropped); both memories come back in the outcome.
+        When the bag's storage fails in the range or its warm-up, the outcome says where
+        (``storage_error``), without rows, and no part file is written.
         """
         with _reported(Outcome(worker=self.identity)) as outcome:
             task = f'range-{span.number:05d}' + ('-rerun' if span.memory is not None else '')
             outcome.attempts = _claim_attempt(job.staging, task)
             namespace = job.options.get('namespace', '/decomposer')
-            with CloudBag(job.bag) as bag:
-                topic = cloud_topic(bag, job.options.get('topics', ()))
-                if span.memory is not None:
-                    memory = pickle.loads(span.memory)
-                else:
-                    memory = GraspMemory()
-                    warmup = process_clouds(
+            try:
+                with CloudBag(job.bag) as bag:
+                    topic = cloud_topic(bag, job.options.get('topics', ()))
+                    if span.memory is not None:
+                        memory = pickle.loads(span.memory)
+                    else:
+                        memory = GraspMemory()
+                        warmup = process_clouds(
+                            bag,
+                            topic,
+                            job.settings,
+                            memory,
+                            namespace=namespace,
+                            start_ns=span.warmup_ns,
+                            stop_ns=span.start_ns,
+                            on_skip=lambda message: None,  # the previous range reports it
+                        )
+                        for _ in warmup:
+                            pass
+                    outcome.start_memory = pickle.dumps(memory)
+                    messages = []
+                    for row, written, _, _ in process_clouds(
                         bag,
                         topic,
                         job.settings,
                         memory,
                         namespace=namespace,
-                        start_ns=span.warmup_ns,
-                        stop_ns=span.start_ns,
-                        on_skip=lambda message: None,  # the previous range reports it
-                    )
-                    for _ in warmup:
-                        pass
-                outcome.start_memory = pickle.dumps(memory)
-                messages = []
-                for row, written, _, _ in process_clouds(
-                    bag,
-                    topic,
-                    job.settings,
-                    memory,
-                    namespace=namespace,
-                    start_ns=span.start_ns,
-                    stop_ns=span.stop_ns,
-                    on_skip=lambda message: outcome.skipped.append(skipped_entry(message)),
-                ):
-                    messages += written
-                    outcome.rows.append(_row(row))
-                outcome.end_memory = pickle.dumps(memory)
+                        start_ns=span.start_ns,
+                        stop_ns=span.stop_ns,
+                        on_skip=lambda message: outcome.skipped.append(skipped_entry(message)),
+                    ):
+                        messages += written
+                        outcome.rows.append(_row(row))
+                    outcome.end_memory = pickle.dumps(memory)
+            except BagStorageError as error:  # the driver runs the bag again as one task
+                outcome.storage_error, outcome.rows, outcome.skipped = str(error), [], []
+                return outcome
             with atomic_open(self.part_path(job, span.number), 'wb') as handle:
                 pickle.dump(messages, handle, protocol=pickle.HIGHEST_PROTOCOL)
         return outcome

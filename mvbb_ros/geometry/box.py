@@ -229,7 +229,7 @@ def box_quaternions(boxes: Sequence[Box]) -> FloatArray:
     return rotation_quaternions(np.stack([box.rotation for box in boxes]))
 
 
-@nb.njit('float64[:, :](float64[:, :, :])', cache=True)
+@nb.njit('float64[:, :](float64[:, :, :])', cache=True, nogil=True)
 def _quaternions(matrices: FloatArray) -> FloatArray:
     """
     Return the unit quaternions (x, y, z, w, w >= 0) of rotation matrices (Markley's method).

@@ -431,7 +431,7 @@ _SIGNATURES = [
 ]
 
 
-@njit(_SIGNATURES, cache=True)
+@njit(_SIGNATURES, cache=True, nogil=True)
 def _decode(
     data: Any,
     shape: Any,

@@ -158,6 +158,7 @@ def store_corners(bounds: Any, corners: Any) -> None:
         for dtype in _POINT_TYPES
     ],
     cache=True,
+    nogil=True,
 )
 def _crop_bounds(points: Any, box: Any, crop: Any, bounds: Any) -> Any:
     """
@@ -396,6 +397,7 @@ def _rehashed(voxels: Any, used: Any, length: Any) -> Any:
         for dtype in _POINT_TYPES
     ],
     cache=True,
+    nogil=True,
 )
 def _voxel_grid(
     points: Any, inside: Any, box: Any, crop: Any, anchor: Any, size: Any, shape: Any
@@ -543,6 +545,7 @@ def voxel_down_sample(
 @njit(
     [types.int64(_points_type(dtype), BOX, types.Array(dtype, 2, 'C')) for dtype in _POINT_TYPES],
     cache=True,
+    nogil=True,
 )
 def _crop(points: Any, box: Any, out: Any) -> Any:
     """Copy the points inside the crop box to the first rows of `out`; return how many."""

@@ -236,7 +236,9 @@ def _query(
 
 
 @njit(
-    types.float64[::1](types.Array(types.float64, 2, 'C', readonly=True), types.int64), cache=True
+    types.float64[::1](types.Array(types.float64, 2, 'C', readonly=True), types.int64),
+    cache=True,
+    nogil=True,
 )
 def _mean_distances(points: Any, neighbors: Any) -> Any:
     """Each point's mean distance to its ``min(neighbors, N)`` nearest points, itself included."""
@@ -277,7 +279,7 @@ def _mean_distances(points: Any, neighbors: Any) -> Any:
     return result
 
 
-@njit(types.int64[::1](types.float64[::1], types.float64), cache=True)
+@njit(types.int64[::1](types.float64[::1], types.float64), cache=True, nogil=True)
 def _kept(mean_distances: Any, std_ratio: Any) -> Any:
     """Open3D's statistics over the mean distances (see the module docstring); kept indices."""
     count = mean_distances.shape[0]

@@ -211,7 +211,7 @@ def fit_plane(
     return normal, offset
 
 
-@njit('int64[:](float64[:, :], float64[:, :], float64[:], float64)', cache=True)
+@njit('int64[:](float64[:, :], float64[:, :], float64[:], float64)', cache=True, nogil=True)
 def _count_near(
     points: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float
 ) -> IndexArray:

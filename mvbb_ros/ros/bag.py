@@ -207,6 +207,11 @@ class CloudBag:
             return None
         return reader if reader.cut else None
 
+    @property
+    def salvaged(self) -> bool:
+        """Whether the bag is read without its index (its storage file is cut short)."""
+        return isinstance(self.reader, SalvageReader)
+
     def close(self) -> None:
         """Close the bag (no-op when it is not open)."""
         if self._reader is not None:

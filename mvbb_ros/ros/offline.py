@@ -333,7 +333,6 @@ def process_bag(
     on_cloud: CloudCallback | None = None,
     on_skip: Callable[[SkippedMessage], None] | None = None,
     skip_corrupt: bool = True,
-    keep_on_storage_error: bool = True,
 ) -> ProcessSummary:
     """
     Run the node's pipeline on every cloud of a bag and write the outputs into a new rosbag2.
@@ -363,13 +362,9 @@ def process_bag(
     :param on_skip: called with each skipped message, when it is skipped.
     :param skip_corrupt: skip messages that do not deserialize; False: such a message is a
         :class:`~mvbb_ros.ros.bag.BagError` and nothing is written.
-    :param keep_on_storage_error: write the clouds before a storage failure; False: the
-        :class:`~mvbb_ros.ros.bag.BagStorageError` is raised and nothing is written (the
-        fleet's choice: its long bags run in time ranges, which cannot stop at the break).
     :return: the per-cloud rows and totals.
-    :raises BagError: for a bad input bag or topic, an output that exists, (without
-        `skip_corrupt`) a message that does not deserialize, or (without
-        `keep_on_storage_error`) a storage failure; nothing is written then.
+    :raises BagError: for a bad input bag or topic, an output that exists, or (without
+        `skip_corrupt`) a message that does not deserialize; nothing is written then.
     """
     settings = settings if settings is not None else PipelineSettings()
     source, target = Path(input_path), Path(output_path)
@@ -415,8 +410,6 @@ def process_bag(
                     if on_cloud is not None:
                         on_cloud(row, cloud, result)
             except BagStorageError as error:  # keep what came before: those clouds are whole
-                if not keep_on_storage_error:
-                    raise
                 summary.storage_error = str(error)
             summary.topics = dict(out.counts)
     summary.wall_seconds = time.perf_counter() - start

@@ -36,12 +36,13 @@ thickness are slivers that rounding can spoil, so the plane's rectangle, its nor
 the thinnest direction on the 2D hulls of all points, is a candidate as well. Extents below
 ``ZERO_EXTENT`` of the largest are reported as exactly 0.
 
-Compiled code: the kernels (names ending in ``_kernel``) are numba functions with ``cache=True``;
-the helpers they call are compiled into them and not cached on their own (fewer cache files, a
-quicker warm start). Kernels take C-contiguous float64 arrays and int64 knobs; their wrappers
-(:func:`fit_box`, :func:`minimum_bounding_box`) check and convert the input, so one
-specialisation per kernel is compiled and cached. A kernel's cache is refreshed when any module
-it calls into changes (:mod:`mvbb_ros.kernel_cache`).
+Compiled code: the kernels (names ending in ``_kernel``) are numba functions with ``cache=True``
+and ``nogil=True`` (they release the GIL while they run, so that a node's executor thread answers
+its services during a frame); the helpers they call are compiled into them and not cached on their
+own (fewer cache files, a quicker warm start). Kernels take C-contiguous float64 arrays and int64
+knobs; their wrappers (:func:`fit_box`, :func:`minimum_bounding_box`) check and convert the input,
+so one specialisation per kernel is compiled and cached. A kernel's cache is refreshed when any
+module it calls into changes (:mod:`mvbb_ros.kernel_cache`).
 """
 
 from __future__ import annotations
@@ -185,7 +186,7 @@ def _planar_frame(local: np.ndarray, first: int, second: int) -> np.ndarray:
     return frame
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def fit_kernel(
     points: np.ndarray,
     seed: int,

@@ -438,7 +438,7 @@ def _expand(
     return facets, current, stamp, 0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def quickhull_kernel(points: np.ndarray, tolerance: float) -> tuple:
     """
     Compute the convex hull of 3D points (see the module notes and :class:`Hull`).
@@ -658,7 +658,7 @@ def _column(value: float, low: float, span: float, cells: int) -> int:
     return min(int((value - low) / span * cells), cells - 1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def column_extremes_kernel(
     points: np.ndarray, low: np.ndarray, high: np.ndarray, cells: int
 ) -> np.ndarray:

@@ -64,7 +64,7 @@ def _before(x: np.ndarray, y: np.ndarray, i: int, j: int) -> bool:
     return x[i] < x[j] or (x[i] == x[j] and y[i] < y[j])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def sort_xy_kernel(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) -> None:
     """
     Sort ``order[:count]`` (indices into x, y) by x, then y.
@@ -147,7 +147,7 @@ def _octagon_cull(x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int) -
     return kept
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def hull_2d_kernel(
     x: np.ndarray, y: np.ndarray, order: np.ndarray, count: int, out: np.ndarray
 ) -> int:
@@ -186,7 +186,7 @@ def hull_2d_kernel(
     return size
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int) -> tuple:
     """
     Find the minimum-area enclosing rectangle of a convex polygon by rotating calipers.
@@ -266,7 +266,7 @@ def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int
     return max(best, 0.0), best_x / length, best_y / length
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def min_area_rectangle_kernel(x: np.ndarray, y: np.ndarray) -> tuple:
     """
     Return the minimum-area rectangle of planar points as (cx, cy, dx, dy, width, height).

@@ -466,7 +466,7 @@ def _sample(count: int, size: int, seed: int) -> np.ndarray:
     return indices[:size].copy()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def candidate_axes_kernel(
     vertices: np.ndarray,
     normals: np.ndarray,
@@ -631,7 +631,7 @@ def polish(
     return volumes[best], frame
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def search_kernel(
     vertices: np.ndarray,
     normals: np.ndarray,

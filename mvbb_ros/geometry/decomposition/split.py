@@ -160,7 +160,7 @@ def _check_measure(measure: str) -> str:
     return measure
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def cell_index_kernel(points: np.ndarray, cells: int) -> tuple:
     """
     Return the grid cell of each point along each axis, and the points' bounds.
@@ -207,7 +207,7 @@ def cell_index_kernel(points: np.ndarray, cells: int) -> tuple:
     return index, low, high
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def frame_points_kernel(
     points: np.ndarray, indices: np.ndarray, center: np.ndarray, rotation: np.ndarray
 ) -> np.ndarray:
@@ -238,7 +238,7 @@ def _part_ratio(parts: float, whole: float, valid: bool) -> float:
     return parts / whole
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def score_kernel(points: np.ndarray, cells: int, volume: bool, min_thickness: float) -> tuple:
     """
     Compute theta of every grid cut of points given in their box's frame (see :func:`score_cuts`).

@@ -107,7 +107,7 @@ HAND_PLACED, HAND_MISSED, HAND_BEYOND_REACH = range(3)
 REACH_SLACK = 0.5
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _place_hand(
     band_u: FloatArray,
     band_v: FloatArray,
@@ -175,7 +175,7 @@ def _place_hand(
     return HAND_PLACED, first, tip, center, low, high, pad_low, pad_high
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _facing(normal: FloatArray, side: int, c: FloatArray, sign: float, cos_limit: float) -> bool:
     """Tell whether one pad's summed normal is within the angle of its pad (or unknown)."""
     nx = normal[3 * side]
@@ -191,6 +191,7 @@ def _facing(normal: FloatArray, side: int, c: FloatArray, sign: float, cos_limit
     'float64[:, :](float64[:, :], float64[:, :], float64[:], float64[:, :], float64[:, :], '
     'float64[:, :], float64[:], float64[:], float64[:])',
     cache=True,
+    nogil=True,
 )
 def _evaluate(
     points: FloatArray,

@@ -59,6 +59,7 @@ SAME_ANGLE_DEG = 15.0
 @nb.njit(
     'boolean[:](float64[:, :], float64[:, :], float64[:, :], float64, float64, int64)',
     cache=True,
+    nogil=True,
 )
 def _distinct(
     centers: FloatArray,

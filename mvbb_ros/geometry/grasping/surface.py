@@ -69,7 +69,7 @@ class SurfaceModel:
     center: FloatArray
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _smallest_eigenvector(
     a00: float, a01: float, a02: float, a11: float, a12: float, a22: float
 ) -> tuple[float, float, float, float]:
@@ -108,7 +108,7 @@ def _smallest_eigenvector(
     return best[0] / best_norm, best[1] / best_norm, best[2] / best_norm, smallest
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _moments(
     points: FloatArray,
     cells: np.ndarray,
@@ -160,7 +160,7 @@ def _moments(
     return n, sx, sy, sz, sxx, sxy, sxz, syy, syz, szz
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _covariance_eigen(
     n: int,
     sx: float,
@@ -183,7 +183,7 @@ def _covariance_eigen(
     return nx, ny, nz, smallest / trace if trace > 0.0 else 0.0
 
 
-@nb.njit('float64[:, :](float64[:, :], float64)', cache=True)
+@nb.njit('float64[:, :](float64[:, :], float64)', cache=True, nogil=True)
 def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     """
     Return each point's normal: the PCA of its neighbours (zero with too few, or on an edge).
@@ -224,7 +224,7 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     return normals
 
 
-@nb.njit('boolean[:, :, ::1](boolean[:, :, ::1])', cache=True)
+@nb.njit('boolean[:, :, ::1](boolean[:, :, ::1])', cache=True, nogil=True)
 def _eroded(grid: np.ndarray) -> np.ndarray:
     """Return `grid` eroded by the six face neighbours (border cells are not kept)."""
     nx, ny, nz = grid.shape
@@ -247,6 +247,7 @@ def _eroded(grid: np.ndarray) -> np.ndarray:
 @nb.njit(
     'Tuple((float64[:, :], float64[:]))(float64[:, :], float64[:], float64, int64, int64)',
     cache=True,
+    nogil=True,
 )
 def _surface_cells(
     points: FloatArray, low: FloatArray, cell: float, seen: int, margin: int

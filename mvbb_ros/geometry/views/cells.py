@@ -26,7 +26,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def cell_grid(
     points: FloatArray, width: float, pad: int
 ) -> tuple[IndexArray, IndexArray, IndexArray, IndexArray]:
@@ -54,7 +54,7 @@ def cell_grid(
     return cells, span, order, keys[order]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def key_order(keys: IndexArray) -> IndexArray:
     """Return the stable order that sorts integer `keys` (a bottom-up merge sort, O(N log N))."""
     count = keys.shape[0]
@@ -87,13 +87,13 @@ def key_order(keys: IndexArray) -> IndexArray:
     return order
 
 
-@nb.njit(cache=True, inline='always')
+@nb.njit(cache=True, nogil=True, inline='always')
 def cell_key(x: int, y: int, z: int, span: IndexArray) -> int:
     """Return the key of cell (x, y, z) in a grid of `span` cells."""
     return (x * span[1] + y) * span[2] + z
 
 
-@nb.njit(cache=True, inline='always')
+@nb.njit(cache=True, nogil=True, inline='always')
 def column_keys(x: int, y: int, z: int, reach: int, span: IndexArray) -> tuple[int, int]:
     """
     Return the first and last key of cells (x, y, z - reach) .. (x, y, z + reach).
@@ -105,7 +105,7 @@ def column_keys(x: int, y: int, z: int, reach: int, span: IndexArray) -> tuple[i
     return first, first + 2 * reach
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def cell_start(sorted_keys: IndexArray, key: int) -> int:
     """Return the first position in `sorted_keys` whose key is not below `key`."""
     low, high = 0, sorted_keys.shape[0]

@@ -109,6 +109,7 @@ PLATE_RATIO = 0.15
     'float64[:, :], float64[:], float64, boolean[:, :], float64[:, :], float64[:, :], float64, '
     'int64[:])',
     cache=True,
+    nogil=True,
 )
 def _mirror_violations(
     sample: FloatArray,
@@ -448,6 +449,7 @@ def _hull_area(points: FloatArray) -> float:
 @nb.njit(
     'float64[:, :](float64[:, :], float64[:, :], float64[:], float64)',
     cache=True,
+    nogil=True,
 )
 def _segment_samples(
     starts: FloatArray, directions: FloatArray, lengths: FloatArray, step: float
@@ -479,7 +481,7 @@ def _samples(
     )
 
 
-@nb.njit('int64[:](int64[:])', cache=True)
+@nb.njit('int64[:](int64[:])', cache=True, nogil=True)
 def _ascending(best: IndexArray) -> IndexArray:
     """Return the non-negative entries of `best` (distinct point indices) in ascending order."""
     largest = -1
@@ -499,7 +501,7 @@ def _ascending(best: IndexArray) -> IndexArray:
     return kept
 
 
-@nb.njit('int64[:](float64[:, :], float64)', cache=True)
+@nb.njit('int64[:](float64[:, :], float64)', cache=True, nogil=True)
 def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     """
     Return the indices of one point per occupied cubic cell `cell` wide (sorted).
@@ -585,7 +587,7 @@ def fill_to_box(points: FloatArray, viewpoint: FloatArray, box: Box, step: float
     return _samples(points, directions, lengths, step)
 
 
-@nb.njit('int64[:](float64[:], float64[:], float64[:], float64)', cache=True)
+@nb.njit('int64[:](float64[:], float64[:], float64[:], float64)', cache=True, nogil=True)
 def _column_tops(
     across: FloatArray, along: FloatArray, height: FloatArray, step: float
 ) -> IndexArray:

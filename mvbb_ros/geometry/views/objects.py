@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 PIECE_GAP_FACTOR = 2.5
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _root(parent: IndexArray, node: int) -> int:
     """Find `node`'s set in the union-find forest, halving the path on the way."""
     while parent[node] != node:
@@ -47,7 +47,7 @@ _CELL_FRACTION = (1.0 - 1e-9) / np.sqrt(3.0)
 _CELL_REACH = 2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _join_if_close(
     points: FloatArray,
     parent: IndexArray,
@@ -74,7 +74,7 @@ def _join_if_close(
                 return
 
 
-@nb.njit('int64[:](float64[:, :], float64)', cache=True)
+@nb.njit('int64[:](float64[:, :], float64)', cache=True, nogil=True)
 def _cluster_labels(points: FloatArray, tolerance: float) -> IndexArray:
     """
     Label the Euclidean clusters of `points` at `tolerance` (labels 0 .. k-1, by first point).

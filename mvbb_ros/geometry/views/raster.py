@@ -110,7 +110,9 @@ class ViewRaster:
         )
 
 
-@nb.njit('float64[:, :](boolean[:, :], float64[:, :], float64, float64, int64)', cache=True)
+@nb.njit(
+    'float64[:, :](boolean[:, :], float64[:, :], float64, float64, int64)', cache=True, nogil=True
+)
 def _oblique_ranges(
     mask: BoolArray, near: FloatArray, cell: float, slope: float, radius: int
 ) -> FloatArray:
@@ -146,7 +148,7 @@ def _oblique_ranges(
     return out
 
 
-@nb.njit(cache=True, inline='always')
+@nb.njit(cache=True, nogil=True, inline='always')
 def pixel(
     dx: float, dy: float, dz: float, frame: FloatArray, origin: FloatArray, cell: float
 ) -> tuple[int, int]:
@@ -167,6 +169,7 @@ def pixel(
     'boolean[:](float64[:, :], float64[:], float64[:, :], float64[:], float64, boolean[:, :], '
     'float64[:, :], float64[:, :], float64)',
     cache=True,
+    nogil=True,
 )
 def _hidden(
     points: FloatArray,
@@ -200,6 +203,7 @@ def _hidden(
     'Tuple((int64[:, :], float64[:]))(float64[:, :], float64[:], float64[:, :], float64[:], '
     'float64, int64, int64)',
     cache=True,
+    nogil=True,
 )
 def _cells(
     points: FloatArray,
@@ -226,7 +230,7 @@ def _cells(
     return index, ranges
 
 
-@nb.njit('boolean[:, ::1](boolean[:, ::1], boolean)', cache=True)
+@nb.njit('boolean[:, ::1](boolean[:, ::1], boolean)', cache=True, nogil=True)
 def _grown(grid: BoolArray, grow: bool) -> BoolArray:
     """
     Return `grid` dilated (`grow`) or eroded by the four edge neighbours.
@@ -251,6 +255,7 @@ def _grown(grid: BoolArray, grow: bool) -> BoolArray:
 @nb.njit(
     'Tuple((boolean[:, ::1], float64[:, ::1]))(int64[:, :], float64[:], int64, int64)',
     cache=True,
+    nogil=True,
 )
 def _outline(
     index: IndexArray, ranges: FloatArray, rows: int, cols: int
