@@ -461,6 +461,7 @@ def process_points(
         viewpoint=view.viewpoint,
         spacing=spacing,
         min_points=min_points,
+        support=None if support is None else support.coefficients,
     )
     timings['objects'] = (time.perf_counter() - start) * 1e3
     if not groups:

@@ -22,8 +22,9 @@ from mvbb_ros.pipeline.scene import find_scene, inside_outline, roi_mask, SceneS
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from support.data import SHARED_DATA
+from support.data import load_benchmark, require_shared_data, SHARED_DATA
 
 SCANS = SHARED_DATA / 'scans'
 
@@ -173,3 +174,23 @@ def test_the_plane_faces_the_sensor_and_its_outline_holds_its_points(
     # The box stands on the table (its lowest centimetre is counted as table), the table goes.
     assert scene.kept is not None and len(scene.kept) >= 1275  # the lowest 1 cm goes
     assert np.all(support.heights(points[scene.kept]) > 0.01)
+
+
+def test_the_laptop_and_the_box_on_the_floor_are_two_objects():
+    """They stand 3 cm apart and touch in the view: two footprints on the floor, two objects."""
+    require_shared_data('scenes', 'pcl_kinect_laptop_box_frame.pcd')
+    require_shared_data('scans', 'pcl_kinect_laptop.npy')
+    scenes = load_benchmark('scenes')
+    points, labels = scenes.scene_truth('pcl_kinect_laptop_box_frame')
+    result = process_points(points, PipelineSettings())
+    assert result.support is not None
+    tree = cKDTree(points)
+    found = [
+        labels[tree.query(item.shape.points[: item.shape.observed])[1]] for item in result.objects
+    ]
+    owners = []
+    for label in (0, 1):  # the laptop, the box
+        shares = [np.count_nonzero(mine == label) / len(mine) for mine in found]
+        owners.append(int(np.argmax(shares)))
+        assert max(shares) > 0.9, 'an object of its own, nearly all of it'
+    assert owners[0] != owners[1]
