@@ -186,13 +186,13 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
 SPACING_SAMPLE = 20_000
 
 
-def spacing_estimate(points: FloatArray, voxel_size: float) -> float:
+def spacing_estimate(points: FloatArray, voxel_size: float, sample: int = SPACING_SAMPLE) -> float:
     """
-    Return about :func:`point_spacing` of `points` (a surface), measured on a sample.
+    Return about :func:`point_spacing` of `points` (a surface), measured on about `sample`.
 
     A surface sampled k times more sparsely has its points about sqrt(k) times farther apart.
     """
-    step = max(1, len(points) // SPACING_SAMPLE)
+    step = max(1, len(points) // sample)
     if step == 1:
         return point_spacing(points, voxel_size)
     return max(point_spacing(points[::step], 0.0) / float(np.sqrt(step)), voxel_size)
@@ -200,6 +200,9 @@ def spacing_estimate(points: FloatArray, voxel_size: float) -> float:
 
 #: A large cloud's table is looked for on every k-th of its points, about this many.
 SCENE_SAMPLE = 16384
+#: The scene stage's grid of the table needs the spacing only roughly: measured on at most
+#: this many points of its sample.
+SCENE_SPACING_SAMPLE = 4096
 
 
 def scene_sample(points: NDArray[np.floating], voxel_size: float) -> FloatArray:
@@ -376,7 +379,7 @@ def process_points(
                 settings.scene,
                 viewpoint=view.viewpoint,
                 up=view.up,
-                spacing=spacing_estimate(sample, filtering.voxel_size),
+                spacing=spacing_estimate(sample, filtering.voxel_size, SCENE_SPACING_SAMPLE),
                 min_points=min_points,
             )
         timings['scene'] = (time.perf_counter() - start) * 1e3

@@ -174,9 +174,38 @@ def roi_mask(
         # A margin for the rounding of the per-point test (float32 points).
         if float(np.linalg.norm(farthest)) <= max_distance * (1.0 - 1e-6):
             return None
-    offsets = points - eye.astype(points.dtype)
-    inside: BoolArray = np.einsum('ij,ij->i', offsets, offsets) <= max_distance**2
+    inside = _within(_readonly(points), eye, float(max_distance) ** 2)
     return None if bool(inside.all()) else inside
+
+
+def _readonly(points: NDArray[np.floating]) -> NDArray[np.floating]:
+    """Return `points` (N, 3) as a C-contiguous read-only float32 or float64 view (no copy)."""
+    array = np.asarray(points)
+    if array.dtype not in (np.float32, np.float64):
+        array = array.astype(np.float64)
+    array = np.ascontiguousarray(array).view()
+    array.flags.writeable = False  # the kernels' signatures: one for any input
+    return array
+
+
+@njit(
+    [
+        types.boolean[::1](
+            types.Array(dtype, 2, 'C', readonly=True), types.float64[::1], types.float64
+        )
+        for dtype in (types.float32, types.float64)
+    ],
+    cache=True,
+)
+def _within(points: Any, eye: Any, squared: Any) -> Any:
+    """Tell which points lie within sqrt(`squared`) of `eye` (in float64)."""
+    inside = np.empty(points.shape[0], dtype=np.bool_)
+    for i in range(points.shape[0]):
+        dx = np.float64(points[i, 0]) - eye[0]
+        dy = np.float64(points[i, 1]) - eye[1]
+        dz = np.float64(points[i, 2]) - eye[2]
+        inside[i] = dx * dx + dy * dy + dz * dz <= squared
+    return inside
 
 
 def _plane_through(points: FloatArray) -> tuple[FloatArray, float]:
@@ -510,13 +539,8 @@ def standing_mask(
         limits = np.einsum('ij,ij->i', outward, outline) - settings.support_margin
     else:
         outward, limits = np.empty((0, 2)), np.empty(0)
-    array = np.asarray(points)
-    if array.dtype not in (np.float32, np.float64):
-        array = array.astype(np.float64)
-    array = np.ascontiguousarray(array).view()
-    array.flags.writeable = False  # the kernel's signature: one for any input
     return _standing_kernel(
-        array,
+        _readonly(points),
         np.ascontiguousarray(support.normal, dtype=np.float64),
         float(support.offset),
         frame,
@@ -543,6 +567,7 @@ def warm_up() -> None:
     outline = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
     support = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0, outline, len(flat))
     for dtype in (np.float32, np.float64):
+        roi_mask(flat.astype(dtype), (0.0, 0.0, 0.0), 1.0)
         standing_mask(flat.astype(dtype) + [0.0, 0.0, 0.1], support, SceneSettings())
 
 
