@@ -117,7 +117,8 @@ class SupportPlane:
     :ivar offset: d of ``normal . x + d = 0`` (metres).
     :ivar outline: (K, 3) the table's outline in the plane, counter-clockwise seen from above
         (K = 0 when a fixed plane has no points near it).
-    :ivar inliers: how many points lie on the table (its patch).
+    :ivar inliers: how many of the points the plane was fitted on lie on the table (its patch;
+        for a large cloud, of the scene stage's sample: ``process.scene_sample``).
     :ivar fixed: the plane was given (``fixed``), not fitted.
     """
 
