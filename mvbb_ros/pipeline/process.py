@@ -465,6 +465,7 @@ def process_points(
         spacing=spacing,
         min_points=min_points,
         support=None if support is None else support.coefficients,
+        clearance=settings.scene.support_distance,
     )
     timings['objects'] = (time.perf_counter() - start) * 1e3
     if not groups:

@@ -33,9 +33,10 @@ from scipy.spatial import cKDTree, ConvexHull, QhullError
 #: Measured on the shared real scans: pieces of one object separated by self-occlusion or an
 #: occluder lie 3.4 to 4.4 cm apart at the 2 cm tolerance (``docs/single_views.md``).
 PIECE_GAP_FACTOR = 2.5
-#: A piece rests on the support plane when at least ``min_points`` of its points lie at most this
-#: high above it (metres): its contact with the table.
-CONTACT_HEIGHT_M = 0.02
+#: A piece rests on the support plane when at least ``min_points`` of its points lie in a band
+#: this deep (metres) at the bottom of what was kept above the table (``clearance`` above it):
+#: its contact with the table.
+CONTACT_BAND_M = 0.01
 
 
 def _convex_outline(flat: FloatArray) -> FloatArray:
@@ -65,21 +66,26 @@ def _separated(first: FloatArray, second: FloatArray) -> bool:
 
 
 def own_footprints(
-    first: FloatArray, second: FloatArray, support: FloatArray, min_points: int
+    first: FloatArray,
+    second: FloatArray,
+    support: FloatArray,
+    min_points: int,
+    clearance: float = 0.0,
 ) -> bool:
     """
     Tell whether two pieces (N, 3) each rest on the support plane with a footprint of its own.
 
     A piece rests on the plane ``support`` = (a, b, c, d), (a, b, c) a unit normal pointing up,
-    when at least `min_points` of its points lie at most :data:`CONTACT_HEIGHT_M` above it; its
-    footprint is the convex hull of those points in the plane. Two resting pieces whose
-    footprints do not overlap are two objects standing side by side.
+    when at least `min_points` of its points lie at most `clearance` + :data:`CONTACT_BAND_M`
+    above it (`clearance`: the height, metres, below which the table's own points were
+    dropped); its footprint is the convex hull of those points in the plane. Two resting pieces
+    whose footprints do not overlap are two objects standing side by side.
     """
     normal, offset = support[:3], float(support[3])
     axes = np.stack(perpendicular_axes(normal))
     footprints = []
     for piece in (first, second):
-        contact = piece[piece @ normal + offset <= CONTACT_HEIGHT_M]
+        contact = piece[piece @ normal + offset <= clearance + CONTACT_BAND_M]
         if len(contact) < max(min_points, 3):
             return False
         footprints.append(_convex_outline(contact @ axes.T))
@@ -192,6 +198,7 @@ def separate_objects(
     spacing: float,
     min_points: int = 1,
     support: ArrayLike | None = None,
+    clearance: float = 0.0,
 ) -> list[IndexArray]:
     """
     Split a cloud into objects.
@@ -204,6 +211,8 @@ def separate_objects(
     :param min_points: clusters with fewer points are left out (noise).
     :param support: (a, b, c, d) of the plane ``a x + b y + c z + d = 0`` the objects stand on,
         (a, b, c) pointing up, or None: pieces resting on it side by side are not joined.
+    :param clearance: with `support`, the height above it (metres) below which the points were
+        dropped as the table's (the scene stage's ``support_distance``).
     :return: each object's point indices (sorted), largest object first (ties: the one with
         the lower first index).
     """
@@ -224,6 +233,7 @@ def separate_objects(
             spacing,
             min_points,
             None if support is None else _unit_plane(support),
+            clearance,
         )
     groups = [np.flatnonzero(labels == label) for label in np.unique(labels)]
     groups = [group for group in groups if len(group) >= min_points]
@@ -246,6 +256,7 @@ def _join_pieces(
     spacing: float,
     min_points: int,
     support: FloatArray | None = None,
+    clearance: float = 0.0,
 ) -> IndexArray:
     """Relabel clusters that are pieces of one object (close, and touching in the view)."""
     sizes = np.bincount(labels, minlength=count)
@@ -294,7 +305,7 @@ def _join_pieces(
         if not np.any(np.isfinite(distance)):
             continue
         if support is not None and own_footprints(
-            trees[first].data, trees[second].data, support, min_points
+            trees[first].data, trees[second].data, support, min_points, clearance
         ):
             continue
         edges.append((first, second))

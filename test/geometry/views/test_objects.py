@@ -101,6 +101,8 @@ def test_property_clusters_are_the_components_of_the_pairs_within_the_tolerance(
 
 #: The table of the footprint tests: y = 0.1 in a camera's optical frame (y down), up is -y.
 TABLE = np.array([0.0, -1.0, 0.0, 0.1])
+#: The scene stage drops what lies within 1 cm of the table (the node's support_distance).
+CLEARANCE = 0.01
 
 
 def standing_box(x0, x1, z0, z1, height=0.1) -> np.ndarray:
@@ -121,7 +123,9 @@ def test_pieces_resting_side_by_side_on_the_support_are_two_objects():
     points = np.concatenate([first, second])
     # Without the table they are pieces of one object (within 2.5 tolerances, touching).
     assert len(separate_objects(points, 0.02, spacing=SPACING)) == 1
-    objects = separate_objects(points, 0.02, spacing=SPACING, support=2.0 * TABLE)
+    objects = separate_objects(
+        points, 0.02, spacing=SPACING, support=2.0 * TABLE, clearance=CLEARANCE
+    )
     assert sorted(len(o) for o in objects) == sorted([len(first), len(second)])
 
 
@@ -131,20 +135,28 @@ def test_pieces_that_do_not_each_rest_on_the_support_stay_one_object():
     front = slab((-0.10, 0.06, 0.90), (0.10, 0.10, 1.0))
     back = slab((-0.10, 0.01, 0.94), (0.10, 0.055, 1.0))
     points = np.concatenate([front, back])
-    assert len(separate_objects(points, 0.02, spacing=SPACING, support=TABLE)) == 1
+    assert (
+        len(separate_objects(points, 0.02, spacing=SPACING, support=TABLE, clearance=CLEARANCE))
+        == 1
+    )
 
 
 def test_own_footprints_needs_two_resting_pieces_with_disjoint_footprints():
     box = standing_box(-0.15, -0.03, 0.80, 0.90)
     beside = standing_box(0.0, 0.10, 0.80, 0.90)
-    assert own_footprints(box, beside, TABLE, 25)
+    assert own_footprints(box, beside, TABLE, 25, CLEARANCE)
     # A piece resting across the other's footprint is not apart: a wall along the depth
     # (x = -0.09, z from 0.78 to 0.84) crossing the box's front edge on the table.
     wall = slab((-0.09, 0.05, 0.78), (-0.09, 0.1, 0.78))
     crossing = np.concatenate([wall + [0.0, 0.0, dz] for dz in np.arange(0.0, 0.06, SPACING)])
-    assert not own_footprints(box, crossing, TABLE, 25)
-    assert own_footprints(box, crossing + [0.2, 0.0, 0.0], TABLE, 25)
+    assert not own_footprints(box, crossing, TABLE, 25, CLEARANCE)
+    assert own_footprints(box, crossing + [0.2, 0.0, 0.0], TABLE, 25, CLEARANCE)
     # A piece above the table (a handle) does not rest on it.
-    assert not own_footprints(box, beside + [0.0, -0.05, 0.0], TABLE, 25)
+    assert not own_footprints(box, beside + [0.0, -0.05, 0.0], TABLE, 25, CLEARANCE)
     # Too few contact points: not resting.
-    assert not own_footprints(box, beside, TABLE, 100_000)
+    assert not own_footprints(box, beside, TABLE, 100_000, CLEARANCE)
+    # The contact band starts where the table's points were dropped: lifted by 3 cm, the
+    # boxes rest on a table whose points went up to 3 cm above the plane.
+    lifted = [box + [0.0, -0.03, 0.0], beside + [0.0, -0.03, 0.0]]
+    assert not own_footprints(*lifted, TABLE, 25, CLEARANCE)
+    assert own_footprints(*lifted, TABLE, 25, 0.03)
