@@ -219,11 +219,6 @@ def scene_sample(points: NDArray[np.floating], voxel_size: float) -> FloatArray:
     return voxel_down_sample(points[::step], voxel_size)[0]
 
 
-def _crop(filtering: Any) -> tuple[Any, Any]:
-    """Return the crop box's corners of the filter settings."""
-    return filtering.crop_min, filtering.crop_max
-
-
 def _empty_counts(count: int = 0) -> FilterCounts:
     return FilterCounts(count, count, count, count)
 
@@ -371,7 +366,9 @@ def process_points(
         # only, not on the whole room. Without a table the cloud is filtered as without the
         # scene stage, from the start.
         start = time.perf_counter()
-        scoped = array if bounds is not None else crop_points(array, *_crop(filtering))
+        scoped = array
+        if bounds is None:  # not cropped by the decoder
+            scoped = crop_points(array, filtering.crop_min, filtering.crop_max)
         sample = scene_sample(scoped, filtering.voxel_size)
         if len(sample) >= min_points:
             scene = find_scene(

@@ -28,6 +28,11 @@ on its table:
    passes is the support.
    Otherwise the cloud is an already segmented object and passes unchanged.
 
+On a camera frame the pipeline (:func:`mvbb_ros.pipeline.process.process_points`) runs
+:func:`find_scene` on the voxel grid of every k-th point (``process.scene_sample``, about 16k
+points), then :func:`standing_mask` cuts the whole frame to what stands on the table in one
+compiled pass, and only those points go through the voxel grid and the outlier removal.
+
 ``support_plane: fixed`` takes the plane ``a x + b y + c z + d = 0`` from
 ``support_coefficients`` ((a, b, c) pointing up, out of the table's top) and skips the fit and
 the decision. The region of interest (``roi_max_distance``, metres from the viewpoint) is
