@@ -252,8 +252,8 @@ def print_report(result: PipelineResult, seconds: float, settings: PipelineSetti
         a, b, c, d = support.coefficients
         print(
             f'support plane ({"fixed" if support.fixed else "fitted"}): '
-            f'{a:.4f} x {b:+.4f} y {c:+.4f} z {d:+.4f} = 0, {support.inliers} points on it, '
-            f'outline of {len(support.outline)} corners'
+            f'{a:.4f} x {b:+.4f} y {c:+.4f} z {d:+.4f} = 0, {support.inliers} points of its fit '
+            f'on it, outline of {len(support.outline)} corners'
         )
     elif result.support_note is not None:
         print(f'no support plane: {result.support_note}')

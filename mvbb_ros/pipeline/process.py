@@ -26,9 +26,19 @@ from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
-from mvbb_ros.pipeline.filtering import filter_points, FilterCounts
-from mvbb_ros.pipeline.outliers import remove_statistical_outliers
-from mvbb_ros.pipeline.scene import find_scene, roi_mask, Scene, SupportPlane
+from mvbb_ros.pipeline.filtering import (
+    crop_points,
+    filter_points,
+    FilterCounts,
+    voxel_down_sample,
+)
+from mvbb_ros.pipeline.scene import (
+    find_scene,
+    roi_mask,
+    Scene,
+    standing_mask,
+    SupportPlane,
+)
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,8 +52,8 @@ class ObjectResult:
 
     :ivar index: the object's number in the cloud (0 is the largest).
     :ivar point_indices: the object's points among the filtered points (sorted; with a
-        support plane, among the voxel grid's points of the whole cloud: the outlier removal
-        then runs on what stands on the table only).
+        support plane, the filtered points of what stands on the table: the voxel grid and the
+        outlier removal then run on those only).
     :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
         points are ``shape.points``, observed first.
     :ivar decomposition: the fit-and-split tree of ``shape.points``.
@@ -179,16 +189,37 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
 SPACING_SAMPLE = 20_000
 
 
-def spacing_estimate(points: FloatArray, voxel_size: float) -> float:
+def spacing_estimate(points: FloatArray, voxel_size: float, sample: int = SPACING_SAMPLE) -> float:
     """
-    Return about :func:`point_spacing` of `points` (a surface), measured on a sample.
+    Return about :func:`point_spacing` of `points` (a surface), measured on about `sample`.
 
     A surface sampled k times more sparsely has its points about sqrt(k) times farther apart.
     """
-    step = max(1, len(points) // SPACING_SAMPLE)
+    step = max(1, len(points) // sample)
     if step == 1:
         return point_spacing(points, voxel_size)
     return max(point_spacing(points[::step], 0.0) / float(np.sqrt(step)), voxel_size)
+
+
+#: A large cloud's table is looked for on every k-th of its points, about this many.
+SCENE_SAMPLE = 16384
+#: The scene stage's grid of the table needs the spacing only roughly: measured on at most
+#: this many points of its sample.
+SCENE_SPACING_SAMPLE = 4096
+
+
+def scene_sample(points: NDArray[np.floating], voxel_size: float) -> FloatArray:
+    """
+    Return the voxel grid of every k-th of `points`, k = ``len(points) // SCENE_SAMPLE``.
+
+    The scene stage's plane, outline and decision need only a sample of a large cloud (a
+    camera frame's rows give evenly spread points); what stands on the table is then taken from
+    all points. The voxel grid keeps the sample's density that of the filtered points, so a
+    dense small cloud (k = 1: the voxel grid of all its points, as without the sample) is
+    judged on the same points as before.
+    """
+    step = max(1, len(points) // SCENE_SAMPLE)
+    return voxel_down_sample(points[::step], voxel_size)[0]
 
 
 def _empty_counts(count: int = 0) -> FilterCounts:
@@ -325,52 +356,67 @@ def process_points(
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
     units_note = units_hint(array, bounds)
-    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance)
+    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, bounds)
     if near is not None:
         # The region of interest before the filters: a room-sized cloud shrinks first.
         array, bounds, finite = array[near], None, None
     filtering = settings.filtering
-    # With the scene stage on, the outlier removal waits for it: it then runs on what stands on
-    # the table only, not on the whole room (it gives the same points as before when the cloud
-    # shows no table). Without a voxel grid the points may still be float32: kept as before.
-    deferred = settings.scene.support_plane != 'none' and filtering.voxel_size > 0.0
-    first = replace(filtering, outlier_neighbors=0) if deferred else filtering
-    filtered, counts = filter_points(array, bounds=bounds, finite=finite, **asdict(first))
-    if near is not None:
-        counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
-    timings['filter'] = (time.perf_counter() - start) * 1e3
     min_points = settings.decomposition.min_points
     view = settings.view
-    start = time.perf_counter()
     scene = Scene(None, None, 'support_plane: none')
-    if settings.scene.support_plane != 'none' and len(filtered) >= min_points:
-        scene = find_scene(
-            filtered,
-            settings.scene,
-            viewpoint=view.viewpoint,
-            up=view.up,
-            spacing=spacing_estimate(filtered, filtering.voxel_size),
-            min_points=min_points,
-        )
-    timings['scene'] = (time.perf_counter() - start) * 1e3
-    kept = np.arange(len(filtered)) if scene.kept is None else scene.kept
-    if deferred:
+    if settings.scene.support_plane != 'none' and filtering.voxel_size > 0.0:
+        # The table first, on a sample of the points; then the filters on what stands on it
+        # only, not on the whole room. Without a table the cloud is filtered as without the
+        # scene stage, from the start.
         start = time.perf_counter()
-        neighbors = filtering.outlier_neighbors
-        if neighbors > 0 and len(kept) > neighbors:
-            inliers = remove_statistical_outliers(
-                filtered[kept], int(neighbors), float(filtering.outlier_std_ratio)
+        scoped = array
+        if bounds is None:  # not cropped by the decoder
+            scoped = crop_points(array, filtering.crop_min, filtering.crop_max)
+        sample = scene_sample(scoped, filtering.voxel_size)
+        if len(sample) >= min_points:
+            scene = find_scene(
+                sample,
+                settings.scene,
+                viewpoint=view.viewpoint,
+                up=view.up,
+                spacing=spacing_estimate(sample, filtering.voxel_size, SCENE_SPACING_SAMPLE),
+                min_points=min_points,
             )
-            kept = kept[inliers]
-        counts = replace(counts, inliers=len(kept))
-        timings['filter'] += (time.perf_counter() - start) * 1e3
+        timings['scene'] = (time.perf_counter() - start) * 1e3
+        start = time.perf_counter()
+        if scene.support is None:
+            filtered, counts = filter_points(
+                array, bounds=bounds, finite=finite, **asdict(filtering)
+            )
+        else:
+            standing_points = scoped[standing_mask(scoped, scene.support, settings.scene)]
+            uncropped = replace(filtering, crop_min=(), crop_max=())
+            filtered, counts = filter_points(standing_points, **asdict(uncropped))
+            whole = len(array) if finite is None else finite
+            counts = replace(counts, finite=int(whole), cropped=len(scoped))
+        timings['filter'] = (time.perf_counter() - start) * 1e3
+    else:
+        filtered, counts = filter_points(array, bounds=bounds, finite=finite, **asdict(filtering))
+        timings['filter'] = (time.perf_counter() - start) * 1e3
+        start = time.perf_counter()
+        if settings.scene.support_plane != 'none' and len(filtered) >= min_points:
+            scene = find_scene(
+                filtered,
+                settings.scene,
+                viewpoint=view.viewpoint,
+                up=view.up,
+                spacing=spacing_estimate(filtered, filtering.voxel_size),
+                min_points=min_points,
+            )
+            if scene.kept is not None:
+                filtered = filtered[scene.kept]
+        timings['scene'] = (time.perf_counter() - start) * 1e3
+    if near is not None:
+        counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
     support = scene.support
-    if support is None:
-        filtered = filtered[kept] if deferred else filtered
-        kept = np.arange(len(filtered))
-    elif len(kept) < min_points:
+    if support is not None and len(filtered) < min_points:
         warning = (
-            f'only {len(kept)} points stand on the support plane, fewer than '
+            f'only {len(filtered)} points stand on the support plane, fewer than '
             f'min_points = {min_points}'
         )
         return PipelineResult(
@@ -389,7 +435,7 @@ def process_points(
             counts=counts, timings_ms=timings, warning=warning, units_note=units_note
         )
     start = time.perf_counter()
-    standing = filtered if support is None else filtered[kept]
+    standing = filtered
     spacing = point_spacing(standing, filtering.voxel_size)
     up: ArrayLike | None = view.up
     up_source = 'up_direction'
@@ -418,6 +464,8 @@ def process_points(
         viewpoint=view.viewpoint,
         spacing=spacing,
         min_points=min_points,
+        support=None if support is None else support.coefficients,
+        clearance=settings.scene.support_distance,
     )
     timings['objects'] = (time.perf_counter() - start) * 1e3
     if not groups:
@@ -449,8 +497,6 @@ def process_points(
         start = time.perf_counter()
         decomposition = decompose(shape.points, **asdict(settings.decomposition))
         timings['decompose'] += (time.perf_counter() - start) * 1e3
-        if support is not None:
-            members = kept[members]
         objects.append(ObjectResult(index, members, shape, decomposition, floor))
 
     start = time.perf_counter()

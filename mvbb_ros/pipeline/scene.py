@@ -28,6 +28,11 @@ on its table:
    passes is the support.
    Otherwise the cloud is an already segmented object and passes unchanged.
 
+On a camera frame the pipeline (:func:`mvbb_ros.pipeline.process.process_points`) runs
+:func:`find_scene` on the voxel grid of every k-th point (``process.scene_sample``, about 16k
+points), then :func:`standing_mask` cuts the whole frame to what stands on the table in one
+compiled pass, and only those points go through the voxel grid and the outlier removal.
+
 ``support_plane: fixed`` takes the plane ``a x + b y + c z + d = 0`` from
 ``support_coefficients`` ((a, b, c) pointing up, out of the table's top) and skips the fit and
 the decision. The region of interest (``roi_max_distance``, metres from the viewpoint) is
@@ -41,12 +46,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
-from typing import get_args, Literal
+from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, perpendicular_axes
-from numba import njit
+from numba import njit, types
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
@@ -117,7 +122,8 @@ class SupportPlane:
     :ivar offset: d of ``normal . x + d = 0`` (metres).
     :ivar outline: (K, 3) the table's outline in the plane, counter-clockwise seen from above
         (K = 0 when a fixed plane has no points near it).
-    :ivar inliers: how many points lie on the table (its patch).
+    :ivar inliers: how many of the points the plane was fitted on lie on the table (its patch;
+        for a large cloud, of the scene stage's sample: ``process.scene_sample``).
     :ivar fixed: the plane was given (``fixed``), not fitted.
     """
 
@@ -153,14 +159,59 @@ class Scene:
     reason: str | None = None
 
 
-def roi_mask(points: FloatArray, viewpoint: ArrayLike, max_distance: float) -> BoolArray | None:
-    """Return which `points` lie within `max_distance` of `viewpoint`, None when all do."""
+def roi_mask(
+    points: FloatArray,
+    viewpoint: ArrayLike,
+    max_distance: float,
+    bounds: ArrayLike | None = None,
+) -> BoolArray | None:
+    """
+    Return which `points` lie within `max_distance` of `viewpoint`, None when all do.
+
+    :param bounds: ``(2, 3)`` min and max corners of the points when known: when the box's
+        farthest corner is well within reach, no point is looked at.
+    """
     if max_distance <= 0.0 or len(points) == 0:
         return None
     eye = np.asarray(viewpoint, dtype=np.float64)
-    offsets = points - eye.astype(points.dtype)
-    inside: BoolArray = np.einsum('ij,ij->i', offsets, offsets) <= max_distance**2
+    if bounds is not None:
+        corners = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+        farthest = np.maximum(np.abs(corners[0] - eye), np.abs(corners[1] - eye))
+        # A margin for the rounding of the per-point test (float32 points).
+        if float(np.linalg.norm(farthest)) <= max_distance * (1.0 - 1e-6):
+            return None
+    inside = _within(_readonly(points), eye, float(max_distance) ** 2)
     return None if bool(inside.all()) else inside
+
+
+def _readonly(points: NDArray[np.floating]) -> NDArray[np.floating]:
+    """Return `points` (N, 3) as a C-contiguous read-only float32 or float64 view (no copy)."""
+    array = np.asarray(points)
+    if array.dtype not in (np.float32, np.float64):
+        array = array.astype(np.float64)
+    array = np.ascontiguousarray(array).view()
+    array.flags.writeable = False  # the kernels' signatures: one for any input
+    return array
+
+
+@njit(
+    [
+        types.boolean[::1](
+            types.Array(dtype, 2, 'C', readonly=True), types.float64[::1], types.float64
+        )
+        for dtype in (types.float32, types.float64)
+    ],
+    cache=True,
+)
+def _within(points: Any, eye: Any, squared: Any) -> Any:
+    """Tell which points lie within sqrt(`squared`) of `eye` (in float64)."""
+    inside = np.empty(points.shape[0], dtype=np.bool_)
+    for i in range(points.shape[0]):
+        dx = np.float64(points[i, 0]) - eye[0]
+        dy = np.float64(points[i, 1]) - eye[1]
+        dz = np.float64(points[i, 2]) - eye[2]
+        inside[i] = dx * dx + dy * dy + dz * dz <= squared
+    return inside
 
 
 def _plane_through(points: FloatArray) -> tuple[FloatArray, float]:
@@ -431,6 +482,81 @@ def find_scene(
     return Scene(None, None, 'no support: ' + '; '.join(reasons))
 
 
+@njit(
+    [
+        types.boolean[::1](
+            types.Array(dtype, 2, 'C', readonly=True),
+            types.float64[::1],
+            types.float64,
+            types.float64[:, ::1],
+            types.float64[:, ::1],
+            types.float64[::1],
+            types.float64,
+            types.float64,
+        )
+        for dtype in (types.float32, types.float64)
+    ],
+    cache=True,
+)
+def _standing_kernel(
+    points: Any,
+    normal: Any,
+    offset: Any,
+    frame: Any,
+    outward: Any,
+    limits: Any,
+    low: Any,
+    high: Any,
+) -> Any:
+    """Tell which points lie in (low, high] above the plane and inside every half-plane."""
+    standing = np.zeros(points.shape[0], dtype=np.bool_)
+    for i in range(points.shape[0]):
+        x, y, z = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
+        height = normal[0] * x + normal[1] * y + normal[2] * z + offset
+        if not (low < height <= high):
+            continue
+        u = frame[0, 0] * x + frame[0, 1] * y + frame[0, 2] * z
+        v = frame[1, 0] * x + frame[1, 1] * y + frame[1, 2] * z
+        inside = True
+        for k in range(outward.shape[0]):
+            if outward[k, 0] * u + outward[k, 1] * v > limits[k]:
+                inside = False
+                break
+        standing[i] = inside
+    return standing
+
+
+def standing_mask(
+    points: NDArray[np.floating], support: SupportPlane, settings: SceneSettings
+) -> BoolArray:
+    """
+    Tell which `points` (N, 3), float32 or float64, stand on `support` (as in :func:`find_scene`).
+
+    More than ``support_distance`` and at most ``support_max_height`` above the plane, at least
+    ``support_margin`` inside its outline (every point counts when it has no outline). One pass
+    over the points, no copies: the scene stage's cut of a whole frame.
+    """
+    frame = np.ascontiguousarray(_frame(support.normal))
+    outline = support.outline @ frame.T
+    if len(outline) >= 3:
+        edges = np.roll(outline, -1, axis=0) - outline
+        outward = np.column_stack([edges[:, 1], -edges[:, 0]])
+        outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
+        limits = np.einsum('ij,ij->i', outward, outline) - settings.support_margin
+    else:
+        outward, limits = np.empty((0, 2)), np.empty(0)
+    return _standing_kernel(
+        _readonly(points),
+        np.ascontiguousarray(support.normal, dtype=np.float64),
+        float(support.offset),
+        frame,
+        np.ascontiguousarray(outward),
+        np.ascontiguousarray(limits),
+        float(settings.support_distance),
+        float(settings.support_max_height),
+    )
+
+
 def _support(
     normal: FloatArray, offset: float, outline: FloatArray, inliers: int, fixed: bool
 ) -> SupportPlane:
@@ -442,7 +568,13 @@ def _support(
 def warm_up() -> None:
     """Run every kernel of this module once (see :mod:`mvbb_ros.kernels`)."""
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
-    fit_plane(np.column_stack([grid, np.zeros(len(grid))]), 0.01)
+    flat = np.column_stack([grid, np.zeros(len(grid))])
+    fit_plane(flat, 0.01)
+    outline = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    support = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0, outline, len(flat))
+    for dtype in (np.float32, np.float64):
+        roi_mask(flat.astype(dtype), (0.0, 0.0, 0.0), 1.0)
+        standing_mask(flat.astype(dtype) + [0.0, 0.0, 0.1], support, SceneSettings())
 
 
 __all__ = [
@@ -454,5 +586,6 @@ __all__ = [
     'SceneSettings',
     'SUPPORT_MODES',
     'SupportMode',
+    'standing_mask',
     'SupportPlane',
 ]

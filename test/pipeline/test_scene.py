@@ -18,12 +18,19 @@ from hypothesis import strategies as st
 from mvbb_ros.arrays import perpendicular_axes
 from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
 from mvbb_ros.pipeline.process import process_points, RESTING_GAP
-from mvbb_ros.pipeline.scene import find_scene, inside_outline, roi_mask, SceneSettings
+from mvbb_ros.pipeline.scene import (
+    find_scene,
+    inside_outline,
+    roi_mask,
+    SceneSettings,
+    standing_mask,
+)
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from support.data import SHARED_DATA
+from support.data import load_benchmark, require_shared_data, SHARED_DATA
 
 SCANS = SHARED_DATA / 'scans'
 
@@ -129,6 +136,13 @@ def test_the_region_of_interest_drops_far_points():
     np.testing.assert_array_equal(roi_mask(points, (0, 0, 0), 3.0), [True, False, True])
     assert roi_mask(points, (0, 0, 0), 0.0) is None
     assert roi_mask(points, (0, 0, 0), 10.0) is None
+    single = points.astype(np.float32)
+    np.testing.assert_array_equal(roi_mask(single, (0, 0, 0), 3.0), [True, False, True])
+    # Bounds well within reach spare the pass over the points; bounds beyond it do not.
+    assert roi_mask(points, (0, 0, 0), 6.0, bounds=[[0, 0, 0], [3, 0, 5]]) is None
+    np.testing.assert_array_equal(
+        roi_mask(points, (0, 0, 0), 4.0, bounds=[[0, 0, 0], [3, 0, 5]]), [True, False, True]
+    )
 
 
 def _table_with_a_box(rotation: np.ndarray, height: float, seed: int) -> np.ndarray:
@@ -173,3 +187,40 @@ def test_the_plane_faces_the_sensor_and_its_outline_holds_its_points(
     # The box stands on the table (its lowest centimetre is counted as table), the table goes.
     assert scene.kept is not None and len(scene.kept) >= 1275  # the lowest 1 cm goes
     assert np.all(support.heights(points[scene.kept]) > 0.01)
+
+
+def test_the_laptop_and_the_box_on_the_floor_are_two_objects():
+    """They stand 3 cm apart and touch in the view: two footprints on the floor, two objects."""
+    require_shared_data('scenes', 'pcl_kinect_laptop_box_frame.pcd')
+    require_shared_data('scans', 'pcl_kinect_laptop.npy')
+    scenes = load_benchmark('scenes')
+    points, labels = scenes.scene_truth('pcl_kinect_laptop_box_frame')
+    result = process_points(points, PipelineSettings())
+    assert result.support is not None
+    tree = cKDTree(points)
+    found = [
+        labels[tree.query(item.shape.points[: item.shape.observed])[1]] for item in result.objects
+    ]
+    owners = []
+    for label in (0, 1):  # the laptop, the box
+        shares = [np.count_nonzero(mine == label) / len(mine) for mine in found]
+        owners.append(int(np.argmax(shares)))
+        assert max(shares) > 0.9, 'an object of its own, nearly all of it'
+    assert owners[0] != owners[1]
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_the_whole_cloud_cut_agrees_with_the_scene_stage(seed):
+    """`standing_mask` (one pass over a whole frame) keeps what `find_scene` keeps."""
+    rotation = Rotation.random(random_state=seed).as_matrix()
+    points = _table_with_a_box(rotation, 0.3, seed)
+    eye = rotation @ [0.1, 0.2, 1.3]
+    settings = SceneSettings(support_plane='auto')
+    scene = find_scene(points, settings, viewpoint=eye, spacing=0.01, min_points=25)
+    assert scene.support is not None and scene.kept is not None
+    np.testing.assert_array_equal(
+        np.flatnonzero(standing_mask(points, scene.support, settings)), scene.kept
+    )
+    # float32 points (as decoded) give the same cut but for points on its edges.
+    single = standing_mask(points.astype(np.float32), scene.support, settings)
+    assert np.count_nonzero(single != standing_mask(points, scene.support, settings)) <= 3

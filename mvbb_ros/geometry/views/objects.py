@@ -7,13 +7,18 @@ cut apart: two clusters are one object when they come within :data:`PIECE_GAP_FA
 the tolerance of each other and overlap or touch in the sensor's view (one piece partly hides,
 or continues, the other). Side-by-side objects with background between them in the view stay
 apart. The rule and its measurements are in ``docs/single_views.md``.
+
+On a table (a support plane given), two pieces that each rest on it with their own footprint
+are two objects, however close: each stands on the table by itself (:func:`own_footprints`).
+A piece of one object cut off by self-occlusion (a handle, a rim, a bowl's inside) either does
+not reach down to the table or rests on it within the other piece's footprint.
 """
 
 from __future__ import annotations
 
 import itertools
 
-from mvbb_ros.arrays import FloatArray, IndexArray
+from mvbb_ros.arrays import FloatArray, IndexArray, perpendicular_axes
 from mvbb_ros.geometry.views.cells import cell_grid, cell_start, column_keys
 from mvbb_ros.geometry.views.raster import view_raster
 import numba as nb
@@ -22,12 +27,69 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree, ConvexHull, QhullError
 
 #: Two clusters closer than this many cluster tolerances, touching in the view, are one object.
 #: Measured on the shared real scans: pieces of one object separated by self-occlusion or an
 #: occluder lie 3.4 to 4.4 cm apart at the 2 cm tolerance (``docs/single_views.md``).
 PIECE_GAP_FACTOR = 2.5
+#: A piece rests on the support plane when at least ``min_points`` of its points lie in a band
+#: this deep (metres) at the bottom of what was kept above the table (``clearance`` above it):
+#: its contact with the table.
+CONTACT_BAND_M = 0.01
+
+
+def _convex_outline(flat: FloatArray) -> FloatArray:
+    """Return the convex hull of `flat` (N >= 3, 2) as its corners, in order."""
+    try:
+        return flat[ConvexHull(flat).vertices]
+    except QhullError:  # all on a line: a thin hull around it
+        return flat[ConvexHull(flat, qhull_options='QJ').vertices]
+
+
+def _separated(first: FloatArray, second: FloatArray) -> bool:
+    """
+    Tell whether two convex polygons (K, 2) are disjoint: some axis separates their shadows.
+
+    The axes are the edges' normals (enough for two proper polygons) and the edges themselves
+    (for a polygon thinned to a segment, whose ends have no edge of their own).
+    """
+    for polygon in (first, second):
+        edges = np.roll(polygon, -1, axis=0) - polygon
+        edges = edges[np.linalg.norm(edges, axis=1) > 0.0]
+        for axis in np.concatenate([np.column_stack([edges[:, 1], -edges[:, 0]]), edges]):
+            if (first @ axis).max() < (second @ axis).min():
+                return True
+            if (second @ axis).max() < (first @ axis).min():
+                return True
+    return False
+
+
+def own_footprints(
+    first: FloatArray,
+    second: FloatArray,
+    support: FloatArray,
+    min_points: int,
+    clearance: float = 0.0,
+) -> bool:
+    """
+    Tell whether two pieces (N, 3) each rest on the support plane with a footprint of its own.
+
+    A piece rests on the plane ``support`` = (a, b, c, d), (a, b, c) a unit normal pointing up,
+    when at least `min_points` of its points lie at most `clearance` + :data:`CONTACT_BAND_M`
+    above it (`clearance`: the height, metres, below which the table's own points were
+    dropped); its footprint is the convex hull of those points in the plane. Two resting pieces
+    whose footprints do not overlap are two objects standing side by side.
+    """
+    normal, offset = support[:3], float(support[3])
+    axes = np.stack(perpendicular_axes(normal))
+    footprints = []
+    for piece in (first, second):
+        contact = piece[piece @ normal + offset <= clearance + CONTACT_BAND_M]
+        if len(contact) < max(min_points, 3):
+            return False
+        footprints.append(_convex_outline(contact @ axes.T))
+    return _separated(*footprints)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -135,6 +197,8 @@ def separate_objects(
     viewpoint: ArrayLike = (0.0, 0.0, 0.0),
     spacing: float,
     min_points: int = 1,
+    support: ArrayLike | None = None,
+    clearance: float = 0.0,
 ) -> list[IndexArray]:
     """
     Split a cloud into objects.
@@ -145,6 +209,10 @@ def separate_objects(
     :param viewpoint: (3,) sensor position in the points' frame.
     :param spacing: point spacing (the voxel size), metres: the view's resolution.
     :param min_points: clusters with fewer points are left out (noise).
+    :param support: (a, b, c, d) of the plane ``a x + b y + c z + d = 0`` the objects stand on,
+        (a, b, c) pointing up, or None: pieces resting on it side by side are not joined.
+    :param clearance: with `support`, the height above it (metres) below which the points were
+        dropped as the table's (the scene stage's ``support_distance``).
     :return: each object's point indices (sorted), largest object first (ties: the one with
         the lower first index).
     """
@@ -164,11 +232,19 @@ def separate_objects(
             np.asarray(viewpoint, dtype=np.float64),
             spacing,
             min_points,
+            None if support is None else _unit_plane(support),
+            clearance,
         )
     groups = [np.flatnonzero(labels == label) for label in np.unique(labels)]
     groups = [group for group in groups if len(group) >= min_points]
     groups.sort(key=lambda group: (-len(group), int(group[0])))
     return groups
+
+
+def _unit_plane(support: ArrayLike) -> FloatArray:
+    """Return the plane (a, b, c, d) scaled so that (a, b, c) is a unit vector."""
+    plane = np.asarray(support, dtype=np.float64).reshape(4)
+    return plane / np.linalg.norm(plane[:3])
 
 
 def _join_pieces(
@@ -179,6 +255,8 @@ def _join_pieces(
     viewpoint: FloatArray,
     spacing: float,
     min_points: int,
+    support: FloatArray | None = None,
+    clearance: float = 0.0,
 ) -> IndexArray:
     """Relabel clusters that are pieces of one object (close, and touching in the view)."""
     sizes = np.bincount(labels, minlength=count)
@@ -224,8 +302,13 @@ def _join_pieces(
             continue
         smaller, larger = sorted((first, second), key=lambda label: trees[label].n)
         distance, _ = trees[larger].query(trees[smaller].data, distance_upper_bound=gap)
-        if np.any(np.isfinite(distance)):
-            edges.append((first, second))
+        if not np.any(np.isfinite(distance)):
+            continue
+        if support is not None and own_footprints(
+            trees[first].data, trees[second].data, support, min_points, clearance
+        ):
+            continue
+        edges.append((first, second))
     if not edges:
         return labels
     pairs = np.array(edges)

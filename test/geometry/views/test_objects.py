@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from mvbb_ros.geometry.views.objects import _cluster_labels, separate_objects
+from mvbb_ros.geometry.views.objects import _cluster_labels, own_footprints, separate_objects
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -97,3 +97,66 @@ def test_property_clusters_are_the_components_of_the_pairs_within_the_tolerance(
     names = np.empty(components.max() + 1, dtype=np.int64)
     names[components[np.sort(first)]] = np.arange(len(first))
     np.testing.assert_array_equal(labels, names[components])
+
+
+#: The table of the footprint tests: y = 0.1 in a camera's optical frame (y down), up is -y.
+TABLE = np.array([0.0, -1.0, 0.0, 0.1])
+#: The scene stage drops what lies within 1 cm of the table (the node's support_distance).
+CLEARANCE = 0.01
+
+
+def standing_box(x0, x1, z0, z1, height=0.1) -> np.ndarray:
+    """Return a box's front face and top seen from the camera, standing on :data:`TABLE`."""
+    front = slab((x0, 0.1 - height, z0), (x1, 0.1, z0))
+    x = np.arange(x0, x1 + 1e-9, SPACING)
+    z = np.arange(z0, z1 + 1e-9, SPACING)
+    top = np.stack(np.meshgrid(x, z), axis=-1).reshape(-1, 2)
+    return np.concatenate(
+        [front, np.column_stack([top[:, 0], np.full(len(top), 0.1 - height), top[:, 1]])]
+    )
+
+
+def test_pieces_resting_side_by_side_on_the_support_are_two_objects():
+    """Two boxes on a table, 3 cm apart, one partly behind the other: touching in the view."""
+    first = standing_box(-0.15, -0.03, 0.80, 0.90)
+    second = standing_box(-0.03, 0.10, 0.93, 1.03)
+    points = np.concatenate([first, second])
+    # Without the table they are pieces of one object (within 2.5 tolerances, touching).
+    assert len(separate_objects(points, 0.02, spacing=SPACING)) == 1
+    objects = separate_objects(
+        points, 0.02, spacing=SPACING, support=2.0 * TABLE, clearance=CLEARANCE
+    )
+    assert sorted(len(o) for o in objects) == sorted([len(first), len(second)])
+
+
+def test_pieces_that_do_not_each_rest_on_the_support_stay_one_object():
+    # A bowl's front rim resting on the table and its inner back wall above it (the bowl test
+    # above, put on a table): the back piece does not reach down to the table.
+    front = slab((-0.10, 0.06, 0.90), (0.10, 0.10, 1.0))
+    back = slab((-0.10, 0.01, 0.94), (0.10, 0.055, 1.0))
+    points = np.concatenate([front, back])
+    assert (
+        len(separate_objects(points, 0.02, spacing=SPACING, support=TABLE, clearance=CLEARANCE))
+        == 1
+    )
+
+
+def test_own_footprints_needs_two_resting_pieces_with_disjoint_footprints():
+    box = standing_box(-0.15, -0.03, 0.80, 0.90)
+    beside = standing_box(0.0, 0.10, 0.80, 0.90)
+    assert own_footprints(box, beside, TABLE, 25, CLEARANCE)
+    # A piece resting across the other's footprint is not apart: a wall along the depth
+    # (x = -0.09, z from 0.78 to 0.84) crossing the box's front edge on the table.
+    wall = slab((-0.09, 0.05, 0.78), (-0.09, 0.1, 0.78))
+    crossing = np.concatenate([wall + [0.0, 0.0, dz] for dz in np.arange(0.0, 0.06, SPACING)])
+    assert not own_footprints(box, crossing, TABLE, 25, CLEARANCE)
+    assert own_footprints(box, crossing + [0.2, 0.0, 0.0], TABLE, 25, CLEARANCE)
+    # A piece above the table (a handle) does not rest on it.
+    assert not own_footprints(box, beside + [0.0, -0.05, 0.0], TABLE, 25, CLEARANCE)
+    # Too few contact points: not resting.
+    assert not own_footprints(box, beside, TABLE, 100_000, CLEARANCE)
+    # The contact band starts where the table's points were dropped: lifted by 3 cm, the
+    # boxes rest on a table whose points went up to 3 cm above the plane.
+    lifted = [box + [0.0, -0.03, 0.0], beside + [0.0, -0.03, 0.0]]
+    assert not own_footprints(*lifted, TABLE, 25, CLEARANCE)
+    assert own_footprints(*lifted, TABLE, 25, 0.03)
