@@ -202,6 +202,7 @@ def _readonly(points: NDArray[np.floating]) -> NDArray[np.floating]:
         for dtype in (types.float32, types.float64)
     ],
     cache=True,
+    nogil=True,
 )
 def _within(points: Any, eye: Any, squared: Any) -> Any:
     """Tell which points lie within sqrt(`squared`) of `eye` (in float64)."""
@@ -497,6 +498,7 @@ def find_scene(
         for dtype in (types.float32, types.float64)
     ],
     cache=True,
+    nogil=True,
 )
 def _standing_kernel(
     points: Any,
