@@ -573,6 +573,7 @@ SPECS: tuple[SettingSpec, ...] = (
         'this of the best new grasp (0: always the best).',
         (0.0, 1.0),
         field='hysteresis',
+        node_default=0.5,
     ),
     SettingSpec(
         'grasp_preference',
