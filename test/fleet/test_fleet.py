@@ -10,7 +10,6 @@ CPU) and kill a worker process in the middle of a bag, or interrupt the run with
 from __future__ import annotations
 
 import csv
-import filecmp
 import os
 from pathlib import Path
 import shutil
@@ -31,6 +30,7 @@ from mvbb_ros.ros.bag import CloudBag, jazzy_typestore, write_cloud_bag
 import pyarrow.parquet as pq
 import pytest
 from support.data import REPO_ROOT
+from support.trees import same_tree
 
 RAY = Path(sys.executable).with_name('ray')
 #: Bags of the quick run: name -> (frames, seed, storage).
@@ -52,14 +52,6 @@ def _serial(bag: Path, folder: Path, *args: str) -> Path:
     target = folder / bag.name
     assert main(['bag', 'process', str(bag), str(target), '--quiet', *args]) == 0
     return target
-
-
-def _same_tree(left: Path, right: Path) -> bool:
-    """Return whether two folders hold the same files with the same bytes."""
-    names = sorted(path.name for path in left.iterdir())
-    if names != sorted(path.name for path in right.iterdir()):
-        return False
-    return all(filecmp.cmp(left / name, right / name, shallow=False) for name in names)
 
 
 def _grasp_counts(bag: Path) -> list[int]:
@@ -121,7 +113,7 @@ def fleet_run(bags, tmp_path_factory):
 def test_outputs_are_the_bytes_of_serial_bag_process(fleet_run, serial):
     output, _, _ = fleet_run
     for name, reference in serial.items():
-        assert _same_tree(output / name, reference), f'{name} differs from serial bag process'
+        assert same_tree(output / name, reference), f'{name} differs from serial bag process'
     rows = [row for row in _summary(output) if row['bag'] == 'scene_long']
     assert rows[0]['ranges'] == 3, 'the long bag was not cut into time ranges'
     assert [row['index'] for row in rows] == list(range(BAGS['scene_long'][0]))
@@ -140,7 +132,7 @@ def test_bad_bags_are_reported_and_the_others_done(fleet_run, bags, serial, tmp_
     assert set(truncated) == {'corrupt'} and 'corrupt' in truncated['corrupt']
     reference = tmp_path / 'corrupt'
     assert main(['bag', 'process', str(bags['corrupt']), str(reference), '--quiet']) == 1
-    assert _same_tree(output / 'corrupt', reference), 'differs from serial bag process'
+    assert same_tree(output / 'corrupt', reference), 'differs from serial bag process'
     kept = sum(1 for row in rows if row['bag'] == 'corrupt' and row['status'] == 'processed')
     done = {row['bag'] for row in rows if row['status'] == 'processed'}
     assert done == set(BAGS) | ({'corrupt'} if kept else set())
@@ -221,7 +213,7 @@ def test_a_sweep_writes_one_output_per_setting_and_one_summary(bags, tmp_path):
     }
     assert boxes['gain_threshold=0.9'] <= boxes['gain_threshold=0.98']
     reference = _serial(bag, tmp_path / 'serial', '-p', 'gain_threshold:=0.9')
-    assert _same_tree(output / 'gain_threshold=0.9' / bag.name, reference)
+    assert same_tree(output / 'gain_threshold=0.9' / bag.name, reference)
     assert not (output / 'summary.png').exists()
 
 
@@ -437,7 +429,7 @@ def test_a_worker_killed_mid_bag_is_retried_and_its_bag_written_once(ray_cluster
     assert len(rows) == 60 and {row['status'] for row in rows} == {'processed'}
     serial = tmp_path / 'serial'
     for bag in long:
-        assert _same_tree(output / bag.name, _serial(bag, serial)), f'{bag.name} differs'
+        assert same_tree(output / bag.name, _serial(bag, serial)), f'{bag.name} differs'
     assert not [path.name for path in output.iterdir() if path.name.startswith('.')]
 
 
@@ -469,13 +461,13 @@ def test_ctrl_c_leaves_no_half_written_output_and_a_rerun_completes(bags, tmp_pa
     finished = [bag for bag in inputs if (output / bag.name).exists()]
     assert len(finished) < len(inputs), 'the run ended before the interrupt'
     for bag in finished:
-        assert _same_tree(output / bag.name, _serial(bag, serial)), f'{bag.name} is half-written'
+        assert same_tree(output / bag.name, _serial(bag, serial)), f'{bag.name} is half-written'
     assert not [path.name for path in output.iterdir() if path.name.startswith('.bag_')]
     assert main(['fleet', *map(str, inputs), '--output', str(output), '--workers', '2']) == 0
     for bag in inputs:
         reference = serial / bag.name
         if not reference.exists():
             _serial(bag, serial)
-        assert _same_tree(output / bag.name, reference)
+        assert same_tree(output / bag.name, reference)
     statuses = {row['bag']: row['status'] for row in _summary(output)}
     assert {statuses[bag.name] for bag in finished} <= {'resumed'}

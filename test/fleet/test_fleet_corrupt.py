@@ -10,7 +10,6 @@ summary must name every skipped message once. One embedded Ray run, one worker.
 from __future__ import annotations
 
 import contextlib
-import filecmp
 import io
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from support.shapes import l_shape_points
+from support.trees import same_tree
 
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
 TOPIC = '/camera/segmented'
@@ -57,13 +57,6 @@ def _write_bag(path: Path, messages: int, spoiled: dict[int, str], storage: str)
     return path
 
 
-def _same_tree(left: Path, right: Path) -> bool:
-    names = sorted(path.name for path in left.iterdir())
-    if names != sorted(path.name for path in right.iterdir()):
-        return False
-    return all(filecmp.cmp(left / name, right / name, shallow=False) for name in names)
-
-
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
     """Write the bags, run `bag process` on each, then one fleet run over both."""
@@ -87,7 +80,7 @@ def test_fleet_skips_corrupt_messages_with_the_bytes_of_bag_process(runs):
     serial, output, code, out = runs
     assert code == 0, out
     for name, reference in serial.items():
-        assert _same_tree(output / name, reference), f'{name} differs from serial bag process'
+        assert same_tree(output / name, reference), f'{name} differs from serial bag process'
     rows = pq.read_table(output / 'summary.parquet').to_pylist()
     assert {row['ranges'] for row in rows if row['bag'] == 'ranged'} == {3}
     assert {row['ranges'] for row in rows if row['bag'] == 'whole'} == {1}

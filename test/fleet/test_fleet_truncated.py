@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections import deque
 import contextlib
-import filecmp
 import io
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 from support.shapes import l_shape_points
+from support.trees import same_tree
 
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
 TOPIC = '/camera/segmented'
@@ -73,13 +73,6 @@ def _write_bag(path: Path, messages: int, storage: str, spoil: str) -> Path:
     return path
 
 
-def _same_tree(left: Path, right: Path) -> bool:
-    names = sorted(path.name for path in left.iterdir())
-    if names != sorted(path.name for path in right.iterdir()):
-        return False
-    return all(filecmp.cmp(left / name, right / name, shallow=False) for name in names)
-
-
 def _fleet(bags: dict[str, Path], output: Path) -> tuple[int, str, str]:
     printed, errors = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(errors):
@@ -114,7 +107,7 @@ def test_fleet_keeps_the_clouds_before_the_break_with_the_bytes_of_bag_process(r
     rows = pq.read_table(output / 'summary.parquet').to_pylist()
     assert not [row for row in rows if row['status'] == 'failed'], rows
     for name, (reference, serial_err) in serial.items():
-        assert _same_tree(output / name, reference), f'{name} differs from serial bag process'
+        assert same_tree(output / name, reference), f'{name} differs from serial bag process'
         clouds = [row for row in rows if row['bag'] == name and row['status'] == 'processed']
         kept = len(clouds)
         assert serial_err.rstrip().endswith(f'kept the {kept} clouds before it in {reference}')
