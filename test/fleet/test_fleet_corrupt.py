@@ -14,19 +14,11 @@ import io
 from pathlib import Path
 
 from mvbb_ros.cli.main import main
-from mvbb_ros.ros.encode import create_cloud_xyz
-import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from rclpy.serialization import serialize_message
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import get_typestore, Stores
-from support.shapes import l_shape_points
+from support.bags import bag_stamp, TOPIC, write_cloud_bag
 from support.trees import same_tree
 
-JAZZY = get_typestore(Stores.ROS2_JAZZY)
-TOPIC = '/camera/segmented'
-CLOUD = 'sensor_msgs/msg/PointCloud2'
 #: name -> (messages, {position: how it is spoiled}, storage).
 BAGS = {
     'ranged': (7, {2: 'cut short', 5: 'random bytes'}, 'mcap'),
@@ -36,25 +28,8 @@ BAGS = {
 RANGE_CLOUDS = 3
 
 
-def _stamp(position: int) -> int:
-    return 1_000_000_000 * (10 + position)
-
-
 def _write_bag(path: Path, messages: int, spoiled: dict[int, str], storage: str) -> Path:
-    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-    with Writer(path, version=8, storage_plugin=plugin) as writer:
-        connection = writer.add_connection(TOPIC, CLOUD, typestore=JAZZY)
-        for position in range(messages):
-            cloud = create_cloud_xyz(l_shape_points(seed=position, count=400), frame_id='cam')
-            cloud.header.stamp.sec = 100 + position
-            raw = serialize_message(cloud)
-            if spoiled.get(position) == 'cut short':
-                raw = raw[: len(raw) // 2]
-            elif spoiled.get(position) == 'random bytes':
-                rng = np.random.default_rng(position)
-                raw = rng.integers(0, 256, 400, dtype=np.uint8).tobytes()
-            writer.write(connection, _stamp(position), raw)
-    return path
+    return write_cloud_bag(path, storage, messages, points=400, spoiled=spoiled)
 
 
 @pytest.fixture(scope='module')
@@ -87,12 +62,12 @@ def test_fleet_skips_corrupt_messages_with_the_bytes_of_bag_process(runs):
     for name, (messages, spoiled, _) in BAGS.items():
         clouds = [row for row in rows if row['bag'] == name and row['status'] == 'processed']
         assert [row['timestamp_ns'] for row in clouds] == [
-            _stamp(p) for p in range(messages) if p not in spoiled
+            bag_stamp(p) for p in range(messages) if p not in spoiled
         ]
         assert [row['index'] for row in clouds] == list(range(messages - len(spoiled)))
         skipped = [row for row in rows if row['bag'] == name and row['status'] == 'skipped']
         assert [(row['topic'], row['timestamp_ns']) for row in skipped] == [
-            (TOPIC, _stamp(p)) for p in sorted(spoiled)
+            (TOPIC, bag_stamp(p)) for p in sorted(spoiled)
         ], 'each skipped message named once, by bag time, also when it falls in a warm-up'
         assert all(row['note'].startswith('skipped: does not deserialize') for row in skipped)
     total = sum(len(spec[1]) for spec in BAGS.values())

@@ -24,18 +24,11 @@ from mvbb_ros.common.progress import ProgressBar
 from mvbb_ros.fleet.run import _Driver, BagReport
 from mvbb_ros.fleet.tasks import BagJob, Outcome, TimeRange
 from mvbb_ros.pipeline.settings import PipelineSettings
-from mvbb_ros.ros.encode import create_cloud_xyz
 import pyarrow.parquet as pq
 import pytest
-from rclpy.serialization import serialize_message
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import get_typestore, Stores
-from support.shapes import l_shape_points
+from support.bags import bag_stamp, cut_in_the_middle, promise_more, write_cloud_bag
 from support.trees import same_tree
 
-JAZZY = get_typestore(Stores.ROS2_JAZZY)
-TOPIC = '/camera/segmented'
-CLOUD = 'sensor_msgs/msg/PointCloud2'
 #: name -> (messages, storage, how the storage is spoiled).
 BAGS = {
     'cut_sqlite': (6, 'sqlite3', 'cut'),
@@ -46,31 +39,10 @@ BAGS = {
 RANGE_CLOUDS = 3
 
 
-def _stamp(position: int) -> int:
-    return 1_000_000_000 * (10 + position)
-
-
 def _write_bag(path: Path, messages: int, storage: str, spoil: str) -> Path:
-    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-    with Writer(path, version=8, storage_plugin=plugin) as writer:
-        connection = writer.add_connection(TOPIC, CLOUD, typestore=JAZZY)
-        for position in range(messages):
-            # 1000 points (12 KB a message): a cut in the middle falls between clouds.
-            cloud = create_cloud_xyz(l_shape_points(seed=position, count=1000), frame_id='cam')
-            cloud.header.stamp.sec = 100 + position
-            writer.write(connection, _stamp(position), serialize_message(cloud))
-    if spoil == 'cut':
-        storage_file = next(p for p in path.iterdir() if p.suffix in ('.db3', '.mcap'))
-        with open(storage_file, 'r+b') as handle:
-            handle.truncate(storage_file.stat().st_size // 2)
-    else:
-        metadata = path / 'metadata.yaml'
-        text = metadata.read_text()
-        assert f'message_count: {messages}' in text
-        metadata.write_text(
-            text.replace(f'message_count: {messages}', f'message_count: {messages + 2}')
-        )
-    return path
+    # 1000 points (12 KB a message): a cut in the middle falls between clouds.
+    bag = write_cloud_bag(path, storage, messages)
+    return cut_in_the_middle(bag) if spoil == 'cut' else promise_more(bag, messages)
 
 
 def _fleet(bags: dict[str, Path], output: Path) -> tuple[int, str, str]:
@@ -115,7 +87,7 @@ def test_fleet_keeps_the_clouds_before_the_break_with_the_bytes_of_bag_process(r
             assert 0 < kept < BAGS[name][0], 'the cut falls between clouds, not before the first'
         else:
             assert kept == BAGS[name][0]
-        assert [row['timestamp_ns'] for row in clouds] == [_stamp(p) for p in range(kept)]
+        assert [row['timestamp_ns'] for row in clouds] == [bag_stamp(p) for p in range(kept)]
         assert [row['index'] for row in clouds] == list(range(kept))
         truncated = [row for row in rows if row['bag'] == name and row['status'] == 'truncated']
         assert len(truncated) == 1 and rows.index(truncated[0]) > rows.index(clouds[-1])

@@ -14,57 +14,28 @@ from pathlib import Path
 
 from mvbb_ros.cli.main import main
 from mvbb_ros.ros.bag import BagStorageError, canonical_cdr, CloudBag
-from mvbb_ros.ros.encode import create_cloud_xyz
 import pytest
-from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import get_typestore, Stores
-from support.shapes import l_shape_points
+from support.bags import (
+    bag_stamp,
+    CLOUD,
+    cut_in_the_middle,
+    promise_more,
+    TOPIC,
+    write_cloud_bag,
+)
 
-JAZZY = get_typestore(Stores.ROS2_JAZZY)
-TOPIC = '/camera/segmented'
-CLOUD = 'sensor_msgs/msg/PointCloud2'
 #: Enough clouds (12 KB each) that a cut in the middle of the file falls between them.
 MESSAGES = 12
 
 
-def _stamp(position: int) -> int:
-    return 1_000_000_000 * (10 + position)
-
-
 def write_bag(path: Path, storage: str, count: int = MESSAGES) -> Path:
-    """Write the first `count` clouds of the test bag on TOPIC; return the bag's path."""
-    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-    with Writer(path, version=8, storage_plugin=plugin) as writer:
-        connection = writer.add_connection(TOPIC, CLOUD, typestore=JAZZY)
-        for position in range(count):
-            cloud = create_cloud_xyz(l_shape_points(seed=position, count=1000), frame_id='cam')
-            cloud.header.stamp.sec = 100 + position
-            writer.write(connection, _stamp(position), serialize_message(cloud))
-    return path
+    """Write the first `count` clouds of the test bag; return the bag's path."""
+    return write_cloud_bag(path, storage, count)
 
 
 def _storage_file(bag: Path) -> Path:
     return next(path for path in bag.iterdir() if path.suffix in ('.db3', '.mcap'))
-
-
-def cut_in_the_middle(bag: Path) -> Path:
-    """Cut the bag's storage file at its middle byte, its metadata.yaml kept as it was."""
-    storage = _storage_file(bag)
-    with open(storage, 'r+b') as handle:
-        handle.truncate(storage.stat().st_size // 2)
-    return bag
-
-
-def promise_more(bag: Path) -> Path:
-    """Make the bag's index (metadata.yaml) list two more messages than the bag holds."""
-    metadata = bag / 'metadata.yaml'
-    text = metadata.read_text()
-    old = f'message_count: {MESSAGES}'
-    assert old in text
-    metadata.write_text(text.replace(old, f'message_count: {MESSAGES + 2}'))
-    return bag
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -94,7 +65,7 @@ def _process(source: Path, folder: Path, capsys) -> tuple[int, str, str, Path]:
 BROKEN = {
     'sqlite3 cut in the middle': ('sqlite3', cut_in_the_middle),
     'mcap cut in the middle': ('mcap', cut_in_the_middle),
-    'index promising more': ('mcap', promise_more),
+    'index promising more': ('mcap', lambda bag: promise_more(bag, MESSAGES)),
 }
 
 
@@ -117,7 +88,9 @@ def test_process_keeps_the_clouds_before_the_break(tmp_path, case, capsys):
         assert _storage_file(source).name in lines[0] and where in lines[0], lines[0]
     assert f'total: {kept} clouds' in out
     stamps = _stamps(output)
-    assert stamps and all(found == [_stamp(p) for p in range(kept)] for found in stamps.values())
+    assert stamps and all(
+        found == [bag_stamp(p) for p in range(kept)] for found in stamps.values()
+    )
     intact = write_bag(tmp_path / 'prefix', storage, count=kept)
     code, _, err, reference = _process(intact, tmp_path / 'reference', capsys)
     assert code == 0, err
