@@ -67,6 +67,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min
+from mvbb_ros.common.workers import Workers
 from mvbb_ros.pipeline.outliers import remove_statistical_outliers
 from numba import njit, types
 import numpy as np
@@ -600,6 +601,7 @@ def filter_points(
     crop_max: ArrayLike | None = None,
     bounds: ArrayLike | None = None,
     finite: int | None = None,
+    pool: Workers | None = None,
 ) -> tuple[NDArray[np.float64], FilterCounts]:
     """
     Crop, voxel-downsample and remove statistical outliers from finite `points` (N, 3).
@@ -619,6 +621,8 @@ def filter_points(
         cropped to the crop box, and the voxel grid skips its own measuring pass.
     :param finite: with `bounds`: how many finite points the cloud had before the crop (the
         first of the counts); None: ``len(points)``.
+    :param pool: workers to split the outlier removal's neighbour queries over (the same
+        points with any), or None.
     :return: the filtered points (M, 3) as float64, and the counts after each step.
     """
     pts = _readonly_points(points)
@@ -634,7 +638,9 @@ def filter_points(
             pts, _ = voxel_down_sample(pts, voxel_size, bounds=bounds)
     count_downsampled = len(pts)
     if outlier_neighbors > 0 and count_downsampled > outlier_neighbors:
-        kept = remove_statistical_outliers(pts, int(outlier_neighbors), float(outlier_std_ratio))
+        kept = remove_statistical_outliers(
+            pts, int(outlier_neighbors), float(outlier_std_ratio), pool
+        )
         pts = pts[kept]
     filtered = np.ascontiguousarray(pts, dtype=np.float64)
     counts = FilterCounts(count_in, count_cropped, count_downsampled, len(filtered))

@@ -263,7 +263,7 @@ def fitting_every_part(points: np.ndarray, **options) -> mvbb_ros.Decomposition:
     from mvbb_ros.geometry.decomposition import split
     from mvbb_ros.geometry.decomposition import tree as decomposition
 
-    def every_part(points, draft, settings, fit_parts, others=None):
+    def every_part(points, draft, settings, fit_parts, others=None, pool=None):
         box = draft.box
         # The decomposition's own framing of the points (the cuts depend on its rounding).
         local = split.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
