@@ -372,6 +372,13 @@ def process_points(
         # only, not on the whole room. Without a table the cloud is filtered as without the
         # scene stage, from the start.
         start = time.perf_counter()
+        unfiltered: Task[tuple[FloatArray, FilterCounts]] | None = None
+        if pool is not None:
+            # A cloud without a table (a segmented object) is filtered whole: that starts now,
+            # on a helper, while this thread looks for the table; a table drops it.
+            unfiltered = pool.submit(
+                lambda: filter_points(array, bounds=bounds, finite=finite, **asdict(filtering))
+            )
         scoped = array
         if bounds is None:  # not cropped by the decoder
             scoped = crop_points(array, filtering.crop_min, filtering.crop_max)
@@ -387,11 +394,15 @@ def process_points(
             )
         timings['scene'] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
-        if scene.support is None:
+        if scene.support is None and unfiltered is not None:
+            filtered, counts = unfiltered.result()
+        elif scene.support is None:
             filtered, counts = filter_points(
                 array, bounds=bounds, finite=finite, pool=pool, **asdict(filtering)
             )
         else:
+            if unfiltered is not None:
+                unfiltered.cancel()
             standing_points = scoped[standing_mask(scoped, scene.support, settings.scene)]
             uncropped = replace(filtering, crop_min=(), crop_max=())
             filtered, counts = filter_points(standing_points, pool=pool, **asdict(uncropped))
@@ -499,6 +510,7 @@ def process_points(
             up=up,
             spacing=spacing,
             floor=floor,
+            pool=pool,
         )
         completion_ms = (time.perf_counter() - start) * 1e3
         surface = None

@@ -103,6 +103,13 @@ def test_a_table_top_scene_of_several_objects_gives_the_same_result(seed):
         assert_same_result(results[1], results[count], f'table-top seed {seed}, {count} workers')
     again = process_points(cloud, with_workers(2))  # the shared pool, used again
     assert_same_result(results[1], again, 'a second call on the same pool')
+    # The next frame of a stream: the previous top grasp checked again (hysteresis).
+    previous = results[1].grasps[0]
+    follow = {
+        count: process_points(cloud, with_workers(count), previous=previous) for count in COUNTS
+    }
+    for count in COUNTS[1:]:
+        assert_same_result(follow[1], follow[count], f'with the previous grasp, {count} workers')
 
 
 def test_the_paper_settings_and_no_completion_give_the_same_result():

@@ -43,6 +43,7 @@ from mvbb_ros.arrays import (
     perpendicular_axes,
     read_only,
 )
+from mvbb_ros.common.workers import Workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
 from mvbb_ros.geometry.boxfit.rectangle import hull_2d_kernel
@@ -653,6 +654,7 @@ def complete_view(
     up: ArrayLike | None = None,
     spacing: float,
     floor: float | None = None,
+    pool: Workers | None = None,
 ) -> CompletedView:
     """
     Return one object's observed points with an estimate of what the sensor could not see.
@@ -666,6 +668,8 @@ def complete_view(
     :param floor: with `up`, the height along unit `up` of the support the object rests on
         (metres), or None: the hidden side is filled down to it, not only to the lowest
         observed point, and no estimate goes below it (the table ends the object).
+    :param pool: workers: the observed points' box is fitted while the view is rastered (the
+        same solid with any), or None.
     :return: the solid, observed points first.
     :raises ValueError: for an unknown method or a non-positive spacing.
     """
@@ -677,6 +681,7 @@ def complete_view(
     eye = np.asarray(viewpoint, dtype=np.float64)
     if method == 'none' or len(pts) < 4:
         return CompletedView(pts, len(pts), method)
+    fitted = None if pool is None else pool.submit(lambda: minimum_bounding_box(pts))
     raster = view_raster(pts, eye, spacing)
     self_hidden = float(np.mean(behind_others(pts, raster, SURFACE_GAP * spacing)))
     if self_hidden > MAX_SELF_HIDDEN:
@@ -684,10 +689,12 @@ def complete_view(
             f'not one view from {eye.tolist()}: {100 * self_hidden:.0f} % of the points lie '
             'behind others (is viewpoint the sensor position in the cloud frame?)'
         )
+        if fitted is not None:
+            fitted.cancel()
         return CompletedView(pts, len(pts), method, skipped=reason)
     # The observed points' minimum box: the extrusion stops at its far faces, and its axes are
     # the object's likely symmetry directions.
-    box = minimum_bounding_box(pts)
+    box = minimum_bounding_box(pts) if fitted is None else fitted.result()
     thin, middle = np.sort(box.extents)[:2]
     if method == 'extrude' or thin <= PLATE_RATIO * middle:
         # One flat face seen gives no depth behind it, and a mirror about a vertical plane
