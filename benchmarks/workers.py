@@ -20,6 +20,13 @@ decomposition (box centre, rotation, extents, point indices, cut, gain) and ever
 (pose, width, score, box and object). The last lines give, per worker count, the median and the
 worst of the per-scan medians, and the load average before and after.
 
+``caller CPU`` is the CPU time of the thread that called ``process_points``, ``CPU`` that of
+the whole process (every thread), medians in ms. On a machine shared with other work the wall
+clock of more workers says little (the helpers wait for a core); the calling thread's CPU time
+does not depend on that: it is what is left on one thread, a floor under the wall clock that
+a quiet machine with enough cores approaches, while ``CPU`` over the wall clock says how many
+cores the run kept busy.
+
 Threads: BLAS and OpenMP are held to one thread each (``OMP_NUM_THREADS`` and friends, set
 before numpy loads), so the workers are the only threads that compute. The process keeps the
 CPUs it was given (``taskset`` to choose them).
@@ -130,15 +137,19 @@ def main() -> int:
     header = ['scan', 'kept', 'boxes', 'grasps']
     for count in counts:
         header += [f'w{count} ms', *(f'w{count} {stage}' for stage in STAGES)]
+        header += [f'w{count} caller CPU', f'w{count} CPU']
     header.append('same')
     print('\n| ' + ' | '.join(header) + ' |')
     print('|' + '---|' * len(header))
     totals: dict[int, list[float]] = {count: [] for count in counts}
+    cpu: dict[int, list[float]] = {count: [] for count in counts}
     all_same = True
     for path in scans:
         cloud = resampled(path)
         prints = set()
         times: dict[int, list[float]] = {count: [] for count in counts}
+        caller: dict[int, list[float]] = {count: [] for count in counts}
+        used: dict[int, list[float]] = {count: [] for count in counts}
         stages: dict[int, dict[str, list[float]]] = {
             count: {stage: [] for stage in STAGES} for count in counts
         }
@@ -148,8 +159,11 @@ def main() -> int:
         for _ in range(args.runs):
             for count in counts:
                 start = time.perf_counter()
+                thread_start, process_start = time.thread_time(), time.process_time()
                 result = process_points(cloud, settings[count])
                 times[count].append((time.perf_counter() - start) * 1e3)
+                caller[count].append((time.thread_time() - thread_start) * 1e3)
+                used[count].append((time.process_time() - process_start) * 1e3)
                 for stage in STAGES:
                     stages[count][stage].append(result.timings_ms.get(stage, 0.0))
                 prints.add(fingerprint(result))
@@ -166,6 +180,8 @@ def main() -> int:
             totals[count].append(median)
             cells.append(f'**{median:.1f}**')
             cells += [f'{np.median(stages[count][stage]):.1f}' for stage in STAGES]
+            cells += [f'{np.median(caller[count]):.1f}', f'{np.median(used[count]):.1f}']
+            cpu[count].append(float(np.median(caller[count])))
         cells.append('yes' if same else '**NO**')
         print('| ' + ' | '.join(cells) + ' |', flush=True)
     print()
@@ -174,7 +190,8 @@ def main() -> int:
         worst = int(np.argmax(values))
         print(
             f'workers {count}: median {np.median(values):.1f} ms, worst {values[worst]:.1f} ms '
-            f'({scans[worst].stem}) over {len(values)} scans'
+            f"({scans[worst].stem}) over {len(values)} scans; the calling thread's CPU time: "
+            f'median {np.median(cpu[count]):.1f} ms, worst {np.max(cpu[count]):.1f} ms'
         )
     if len(counts) > 1:
         first = np.asarray(totals[counts[0]])
