@@ -7,7 +7,7 @@ kernels run on as many cores as there are threads. :func:`workers` returns the s
 per cloud). A :class:`Workers` of ``count`` threads is the calling thread plus ``count - 1``
 helper threads:
 
-- :meth:`Workers.map` runs a function over items, the caller taking its share, and returns the
+- :meth:`Workers.spread` runs a function over items, the caller taking its share, and returns the
   results in the items' order;
 - :meth:`Workers.submit` starts one call in the background; :meth:`Task.result` waits for it,
   or runs it on the calling thread when no helper has started it yet.
@@ -148,7 +148,7 @@ class Workers:
         assert self._executor is not None
         return Task(function, self._executor.submit(function))
 
-    def map(self, function: Callable[[T], R], items: Iterable[T]) -> list[R]:
+    def spread(self, function: Callable[[T], R], items: Iterable[T]) -> list[R]:
         """
         Return ``[function(item) for item in items]``, the calls spread over the threads.
 

@@ -347,7 +347,7 @@ def _mean_distances_split(
             result,
         )  # fmt: skip
 
-    pool.map(fill, split_rows(pool, count))
+    pool.spread(fill, split_rows(pool, count))
     return result
 
 

@@ -527,7 +527,7 @@ def process_points(
         done = [one_object(index) for index in range(len(groups))]
     else:
         # Objects at once, in order; each object's own fits and surface use the rest.
-        done = pool.map(one_object, range(len(groups)))
+        done = pool.spread(one_object, range(len(groups)))
     objects = [item for item, *_ in done]
     surfaces = [surface for _, surface, *_ in done]
     for _, _, completion_ms, decompose_ms in done:
@@ -643,7 +643,7 @@ def object_surface(item: ObjectResult, spacing: float, up: ArrayLike | None) -> 
 def shape_surface(
     shape: CompletedView, floor: float | None, spacing: float, up: ArrayLike | None
 ) -> SurfaceModel:
-    """Return the surface of an object's shape (observed and estimated points) for the refinement."""
+    """Return the surface of an object's shape (its observed and estimated points)."""
     return surface_model(
         shape.points, observed=shape.observed, cell=spacing, up=up, support_floor=floor
     )

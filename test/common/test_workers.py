@@ -35,11 +35,11 @@ def test_one_worker_runs_everything_on_the_calling_thread():
     pool = workers(1)
     caller = threading.get_ident()
     assert not pool.parallel
-    assert pool.map(lambda _: threading.get_ident(), range(5)) == [caller] * 5
+    assert pool.spread(lambda _: threading.get_ident(), range(5)) == [caller] * 5
     assert pool.submit(threading.get_ident).result() == caller
 
 
-def test_map_keeps_the_order_and_uses_the_helpers():
+def test_spread_keeps_the_order_and_uses_the_helpers():
     pool = workers(3)
     release = threading.Barrier(3, timeout=10.0)
 
@@ -47,20 +47,20 @@ def test_map_keeps_the_order_and_uses_the_helpers():
         release.wait()  # three items run at once, or this times out
         return item * item, threading.get_ident()
 
-    results = pool.map(meet, range(3))
+    results = pool.spread(meet, range(3))
     assert [square for square, _ in results] == [0, 1, 4]
     assert len({thread for _, thread in results}) == 3
-    assert pool.map(lambda item: -item, range(100)) == [-item for item in range(100)]
+    assert pool.spread(lambda item: -item, range(100)) == [-item for item in range(100)]
 
 
 def test_calls_from_a_helper_run_inline_so_nothing_waits_on_itself():
     pool = workers(2)
 
     def outer(item: int) -> tuple[bool, list[int]]:
-        inner = pool.map(lambda value: value + item, range(4))  # would deadlock if queued
+        inner = pool.spread(lambda value: value + item, range(4))  # would deadlock if queued
         return in_helper(), inner
 
-    results = pool.map(outer, range(4))
+    results = pool.spread(outer, range(4))
     assert [inner for _, inner in results] == [[v + i for v in range(4)] for i in range(4)]
     assert not in_helper()
 
@@ -88,7 +88,7 @@ def test_an_error_in_a_task_is_raised_to_the_caller():
         return item
 
     with pytest.raises(RuntimeError, match='item 2'):
-        workers(2).map(fail, range(4))
+        workers(2).spread(fail, range(4))
 
 
 def test_row_slices_cover_every_row_once():

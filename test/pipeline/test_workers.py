@@ -128,7 +128,7 @@ def test_the_paper_settings_and_no_completion_give_the_same_result():
 
 
 def test_one_worker_runs_on_the_calling_thread_only(monkeypatch):
-    """workers = 1 never touches a pool: the code path of a single thread."""
+    """One worker never touches a pool: the code path of a single thread."""
     import mvbb_ros.pipeline.process as process
 
     def no_pool(count):

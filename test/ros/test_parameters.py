@@ -26,9 +26,9 @@ from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from visualization_msgs.msg import Marker
 from support.ros_graph import Graph, set_parameter
 from support.shapes import l_shape_points
+from visualization_msgs.msg import Marker
 
 
 def _hostile_values(spec) -> list:

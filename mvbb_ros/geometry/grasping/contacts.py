@@ -601,7 +601,7 @@ def evaluate_lines(
             up,
         )
     # Each row depends on its own line only: slices of the lines give the same rows.
-    return np.concatenate(pool.map(rows, parts))
+    return np.concatenate(pool.spread(rows, parts))
 
 
 def warm_up() -> None:
