@@ -76,11 +76,14 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     'BOX',
     'FilterCounts',
+    'Voxels',
     'crop_box',
     'crop_points',
     'filter_points',
     'inside_box',
+    'outlier_step',
     'voxel_down_sample',
+    'voxel_step',
 ]
 
 #: Largest voxel index along one axis (Open3D's limit: a C int).
@@ -625,6 +628,36 @@ def filter_points(
         points with any), or None.
     :return: the filtered points (M, 3) as float64, and the counts after each step.
     """
+    voxels = voxel_step(
+        points,
+        voxel_size=voxel_size,
+        crop_min=crop_min,
+        crop_max=crop_max,
+        bounds=bounds,
+        finite=finite,
+    )
+    return outlier_step(voxels, outlier_neighbors, outlier_std_ratio, pool)
+
+
+@dataclass(frozen=True)
+class Voxels:
+    """The points after :func:`filter_points`' crop and voxel grid, and the counts so far."""
+
+    points: NDArray[np.floating]
+    finite: int
+    cropped: int
+
+
+def voxel_step(
+    points: ArrayLike,
+    *,
+    voxel_size: float = 0.0,
+    crop_min: ArrayLike | None = None,
+    crop_max: ArrayLike | None = None,
+    bounds: ArrayLike | None = None,
+    finite: int | None = None,
+) -> Voxels:
+    """Return the first steps of :func:`filter_points` (same arguments): crop, voxel grid."""
     pts = _readonly_points(points)
     count_in = len(pts) if finite is None else int(finite)
     if bounds is None and voxel_size <= 0.0:
@@ -636,6 +669,17 @@ def filter_points(
             count_cropped = int(members.sum())
         else:
             pts, _ = voxel_down_sample(pts, voxel_size, bounds=bounds)
+    return Voxels(pts, count_in, count_cropped)
+
+
+def outlier_step(
+    voxels: Voxels,
+    outlier_neighbors: int = 0,
+    outlier_std_ratio: float = 2.0,
+    pool: Workers | None = None,
+) -> tuple[NDArray[np.float64], FilterCounts]:
+    """Return :func:`filter_points`' result from its :func:`voxel_step`: the outliers removed."""
+    pts = voxels.points
     count_downsampled = len(pts)
     if outlier_neighbors > 0 and count_downsampled > outlier_neighbors:
         kept = remove_statistical_outliers(
@@ -643,7 +687,7 @@ def filter_points(
         )
         pts = pts[kept]
     filtered = np.ascontiguousarray(pts, dtype=np.float64)
-    counts = FilterCounts(count_in, count_cropped, count_downsampled, len(filtered))
+    counts = FilterCounts(voxels.finite, voxels.cropped, count_downsampled, len(filtered))
     return filtered, counts
 
 

@@ -31,7 +31,10 @@ from mvbb_ros.pipeline.filtering import (
     crop_points,
     filter_points,
     FilterCounts,
+    outlier_step,
     voxel_down_sample,
+    voxel_step,
+    Voxels,
 )
 from mvbb_ros.pipeline.scene import (
     find_scene,
@@ -372,12 +375,19 @@ def process_points(
         # only, not on the whole room. Without a table the cloud is filtered as without the
         # scene stage, from the start.
         start = time.perf_counter()
-        unfiltered: Task[tuple[FloatArray, FilterCounts]] | None = None
+        unfiltered: Task[Voxels] | None = None
         if pool is not None:
-            # A cloud without a table (a segmented object) is filtered whole: that starts now,
-            # on a helper, while this thread looks for the table; a table drops it.
+            # A cloud without a table (a segmented object) is filtered whole: its voxel grid
+            # starts now, on a helper, while this thread looks for the table; a table drops it.
             unfiltered = pool.submit(
-                lambda: filter_points(array, bounds=bounds, finite=finite, **asdict(filtering))
+                lambda: voxel_step(
+                    array,
+                    voxel_size=filtering.voxel_size,
+                    crop_min=filtering.crop_min,
+                    crop_max=filtering.crop_max,
+                    bounds=bounds,
+                    finite=finite,
+                )
             )
         scoped = array
         if bounds is None:  # not cropped by the decoder
@@ -395,7 +405,12 @@ def process_points(
         timings['scene'] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
         if scene.support is None and unfiltered is not None:
-            filtered, counts = unfiltered.result()
+            filtered, counts = outlier_step(
+                unfiltered.result(),
+                filtering.outlier_neighbors,
+                filtering.outlier_std_ratio,
+                pool,
+            )
         elif scene.support is None:
             filtered, counts = filter_points(
                 array, bounds=bounds, finite=finite, pool=pool, **asdict(filtering)
