@@ -136,13 +136,14 @@ def main() -> int:
         return 1
     header = ['scan', 'kept', 'boxes', 'grasps']
     for count in counts:
-        header += [f'w{count} ms', *(f'w{count} {stage}' for stage in STAGES)]
-        header += [f'w{count} caller CPU', f'w{count} CPU']
+        header += [f'w{count} ms', f'w{count} caller CPU', f'w{count} CPU']
     header.append('same')
-    print('\n| ' + ' | '.join(header) + ' |')
+    print('\n## Per scan: medians in ms (wall clock, CPU of the calling thread, of the process)\n')
+    print('| ' + ' | '.join(header) + ' |')
     print('|' + '---|' * len(header))
     totals: dict[int, list[float]] = {count: [] for count in counts}
     cpu: dict[int, list[float]] = {count: [] for count in counts}
+    stage_rows: dict[int, list[list[float]]] = {count: [] for count in counts}
     all_same = True
     for path in scans:
         cloud = resampled(path)
@@ -178,12 +179,22 @@ def main() -> int:
         for count in counts:
             median = float(np.median(times[count]))
             totals[count].append(median)
-            cells.append(f'**{median:.1f}**')
-            cells += [f'{np.median(stages[count][stage]):.1f}' for stage in STAGES]
-            cells += [f'{np.median(caller[count]):.1f}', f'{np.median(used[count]):.1f}']
             cpu[count].append(float(np.median(caller[count])))
+            cells += [
+                f'**{median:.1f}**',
+                f'{cpu[count][-1]:.1f}',
+                f'{np.median(used[count]):.1f}',
+            ]
+            stage_rows[count].append([float(np.median(stages[count][stage])) for stage in STAGES])
         cells.append('yes' if same else '**NO**')
         print('| ' + ' | '.join(cells) + ' |', flush=True)
+    print("\n## Stages (`timings_ms`): median over the scans of each scan's median, ms\n")
+    print('| workers | ' + ' | '.join(STAGES) + ' | wall clock |')
+    print('|' + '---|' * (len(STAGES) + 2))
+    for count in counts:
+        medians = np.median(np.asarray(stage_rows[count]), axis=0)
+        cells = [f'{value:.1f}' for value in medians]
+        print(f'| {count} | ' + ' | '.join(cells) + f' | {np.median(totals[count]):.1f} |')
     print()
     for count in counts:
         values = np.asarray(totals[count])
@@ -195,9 +206,14 @@ def main() -> int:
         )
     if len(counts) > 1:
         first = np.asarray(totals[counts[0]])
+        first_cpu = np.asarray(cpu[counts[0]])
         for count in counts[1:]:
             ratio = np.asarray(totals[count]) / first
-            print(f'workers {count} / workers {counts[0]}: median ratio {np.median(ratio):.2f}')
+            cpu_ratio = np.asarray(cpu[count]) / first_cpu
+            print(
+                f'workers {count} / workers {counts[0]}: median ratio {np.median(ratio):.2f} '
+                f"(the calling thread's CPU time: {np.median(cpu_ratio):.2f})"
+            )
     print(f'identical outputs for every worker count: {"yes" if all_same else "NO"}')
     print('load average after: ' + ' '.join(f'{value:.2f}' for value in os.getloadavg()))
     return 0 if all_same else 1
