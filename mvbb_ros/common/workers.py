@@ -102,6 +102,10 @@ class Task(Generic[R]):
             self._value = self._function()
             self._done = True
 
+    def done(self) -> bool:
+        """Tell whether the call has finished (run here or on a helper)."""
+        return self._done or (self._future is not None and self._future.done())
+
     def cancel(self) -> None:
         """Drop the call if no helper has started it (its result is not wanted)."""
         if self._future is not None:

@@ -501,6 +501,13 @@ def _best_split_parallel(
             )
             if best is not None and not first.volume < best.volume - margin:
                 continue
+            second_fit.run_if_waiting()
+            for ahead in reversed(second_fits):
+                if second_fit.done():
+                    break
+                # While a helper fits this part, this thread fits the others ahead of need
+                # (most are needed; each is fitted once either way).
+                ahead.run_if_waiting()
             second = second_fit.result()
             boxes = (first, second) if larger == 0 else (second, first)
             split = _Split(cut=cut, parts=parts, boxes=boxes)
