@@ -24,9 +24,9 @@ The clouds are published reliable with keep last 1, as camera drivers and bag pl
 large clouds before the node sees them; the profile above does not). The node runs on one core
 (``--node-core``, default 1, set before it starts; this process on the other), as on a robot
 that gives the decomposer one core; ``--node-core 0,1`` gives it both (its ``workers`` default
-to the CPUs it may use, so 2 then). The last lines compare the decomposer's figures with issue 17's targets:
-at least 95 % of the clouds answered, p99 latency under 50 ms, resident memory growing less
-than 5 % after the warm-up (the first minute), exit code 0 on SIGINT.
+to the CPUs it may use, so 2 then). The last lines compare the decomposer's figures with
+issue 17's targets: at least 95 % of the clouds answered, p99 latency under 50 ms, resident
+memory growing less than 5 % after the warm-up (the first minute), exit code 0 on SIGINT.
 """
 
 from __future__ import annotations
