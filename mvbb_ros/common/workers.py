@@ -191,6 +191,17 @@ def workers(count: int) -> Workers:
         return pool
 
 
+def _forget_pools() -> None:
+    # A forked child has none of the parent's threads: it makes its own pools on first use.
+    global _pools_lock
+    _pools.clear()
+    _pools_lock = threading.Lock()
+
+
+if hasattr(os, 'register_at_fork'):
+    os.register_at_fork(after_in_child=_forget_pools)
+
+
 def chunks(count: int, parts: int) -> list[slice]:
     """
     Return at most `parts` consecutive slices that cover ``range(count)``, sizes within one.

@@ -102,3 +102,24 @@ def test_row_slices_cover_every_row_once():
     assert split_rows(None, 10) == [slice(0, 10)]
     assert split_rows(workers(1), 10) == [slice(0, 10)]
     assert len(split_rows(workers(2), 10)) == 4
+
+
+def test_a_forked_child_makes_its_own_pool():
+    parent = workers(2)
+    read, write = os.pipe()
+    child = os.fork()
+    if child == 0:  # the child: the parent's helper threads do not exist here
+        try:
+            pool = workers(2)
+            ok = pool is not parent and pool.spread(lambda item: item * 2, range(6)) == [
+                0, 2, 4, 6, 8, 10,
+            ]  # fmt: skip
+            os.write(write, b'1' if ok else b'0')
+        finally:
+            os._exit(0)
+    os.close(write)
+    answer = os.read(read, 1)
+    os.close(read)
+    os.waitpid(child, 0)
+    assert answer == b'1'
+    assert workers(2) is parent
