@@ -641,7 +641,8 @@ def _add_fleet_command(commands: argparse._SubParsersAction) -> None:
     )
     fleet.add_argument('--no-picture', action='store_true', help='do not draw summary.png')
     _add_progress_option(fleet)
-    add_settings_options(fleet, node=True)
+    # --workers is the fleet's (Ray workers); a bag's pipeline threads: -p workers:=N.
+    add_settings_options(fleet, node=True, without=('workers',))
     fleet.set_defaults(handler=_run_fleet)
 
 

@@ -60,13 +60,18 @@ def _argument_options(spec: SettingSpec) -> dict[str, Any]:
     return options
 
 
-def add_settings_options(parser: argparse.ArgumentParser, *, node: bool = False) -> None:
+def add_settings_options(
+    parser: argparse.ArgumentParser, *, node: bool = False, without: tuple[str, ...] = ()
+) -> None:
     """
     Add ``--preset``, ``--params-file``, ``-p`` and one flag per setting to `parser`.
 
     :param parser: the subcommand's parser.
     :param node: also add the node's own settings (``publish_tree``, ``reliable_input``).
+    :param without: settings that get no flag (the subcommand has a flag of that name for
+        something else); ``-p name:=value`` still sets them.
     """
+    parser.set_defaults(settings_without_flags=without)
     group = parser.add_argument_group(
         'settings',
         "the node's parameters (config/decomposer.yaml); --preset, then --params-file, then "
@@ -93,7 +98,7 @@ def add_settings_options(parser: argparse.ArgumentParser, *, node: bool = False)
         help='set a parameter, as ros2 run ... -p does (repeatable)',
     )
     for spec in SPECS:
-        if spec.stage is NodeSettings and not node:
+        if (spec.stage is NodeSettings and not node) or spec.name in without:
             continue
         group.add_argument(*_flags(spec), **_argument_options(spec))
 
@@ -109,5 +114,10 @@ def settings_from_args(args: argparse.Namespace) -> PipelineSettings:
     if args.params_file is not None:
         settings = settings.updated(read_params_file(args.params_file))
     settings = settings.updated(parse_assignments(args.param))
-    flags = {spec.name: getattr(args, spec.name) for spec in SPECS if hasattr(args, spec.name)}
+    without = getattr(args, 'settings_without_flags', ())
+    flags = {
+        spec.name: getattr(args, spec.name)
+        for spec in SPECS
+        if hasattr(args, spec.name) and spec.name not in without
+    }
     return settings.updated(flags)

@@ -169,10 +169,15 @@ def settings_digest(bag: Path, settings: PipelineSettings, options: dict[str, An
     """
     Return a hash of what a bag's output depends on: settings, options, the input's files.
 
+    Not the worker threads (``execution``): the output is the same with any number, so a run
+    on another machine (or with other ``workers``) resumes what is complete.
+
     :raises OSError: when the bag cannot be read (reported per bag).
     """
+    stages = asdict(settings)
+    stages.pop('execution', None)
     document = {
-        'settings': asdict(settings),
+        'settings': stages,
         'options': options,
         'input': _input_identity(bag),
     }

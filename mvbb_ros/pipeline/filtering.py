@@ -67,6 +67,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min
+from mvbb_ros.common.workers import Workers
 from mvbb_ros.pipeline.outliers import remove_statistical_outliers
 from numba import njit, types
 import numpy as np
@@ -75,11 +76,14 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     'BOX',
     'FilterCounts',
+    'Voxels',
     'crop_box',
     'crop_points',
     'filter_points',
     'inside_box',
+    'outlier_step',
     'voxel_down_sample',
+    'voxel_step',
 ]
 
 #: Largest voxel index along one axis (Open3D's limit: a C int).
@@ -600,6 +604,7 @@ def filter_points(
     crop_max: ArrayLike | None = None,
     bounds: ArrayLike | None = None,
     finite: int | None = None,
+    pool: Workers | None = None,
 ) -> tuple[NDArray[np.float64], FilterCounts]:
     """
     Crop, voxel-downsample and remove statistical outliers from finite `points` (N, 3).
@@ -619,8 +624,40 @@ def filter_points(
         cropped to the crop box, and the voxel grid skips its own measuring pass.
     :param finite: with `bounds`: how many finite points the cloud had before the crop (the
         first of the counts); None: ``len(points)``.
+    :param pool: workers to split the outlier removal's neighbour queries over (the same
+        points with any), or None.
     :return: the filtered points (M, 3) as float64, and the counts after each step.
     """
+    voxels = voxel_step(
+        points,
+        voxel_size=voxel_size,
+        crop_min=crop_min,
+        crop_max=crop_max,
+        bounds=bounds,
+        finite=finite,
+    )
+    return outlier_step(voxels, outlier_neighbors, outlier_std_ratio, pool)
+
+
+@dataclass(frozen=True)
+class Voxels:
+    """The points after :func:`filter_points`' crop and voxel grid, and the counts so far."""
+
+    points: NDArray[np.floating]
+    finite: int
+    cropped: int
+
+
+def voxel_step(
+    points: ArrayLike,
+    *,
+    voxel_size: float = 0.0,
+    crop_min: ArrayLike | None = None,
+    crop_max: ArrayLike | None = None,
+    bounds: ArrayLike | None = None,
+    finite: int | None = None,
+) -> Voxels:
+    """Return the first steps of :func:`filter_points` (same arguments): crop, voxel grid."""
     pts = _readonly_points(points)
     count_in = len(pts) if finite is None else int(finite)
     if bounds is None and voxel_size <= 0.0:
@@ -632,12 +669,25 @@ def filter_points(
             count_cropped = int(members.sum())
         else:
             pts, _ = voxel_down_sample(pts, voxel_size, bounds=bounds)
+    return Voxels(pts, count_in, count_cropped)
+
+
+def outlier_step(
+    voxels: Voxels,
+    outlier_neighbors: int = 0,
+    outlier_std_ratio: float = 2.0,
+    pool: Workers | None = None,
+) -> tuple[NDArray[np.float64], FilterCounts]:
+    """Return :func:`filter_points`' result from its :func:`voxel_step`: the outliers removed."""
+    pts = voxels.points
     count_downsampled = len(pts)
     if outlier_neighbors > 0 and count_downsampled > outlier_neighbors:
-        kept = remove_statistical_outliers(pts, int(outlier_neighbors), float(outlier_std_ratio))
+        kept = remove_statistical_outliers(
+            pts, int(outlier_neighbors), float(outlier_std_ratio), pool
+        )
         pts = pts[kept]
     filtered = np.ascontiguousarray(pts, dtype=np.float64)
-    counts = FilterCounts(count_in, count_cropped, count_downsampled, len(filtered))
+    counts = FilterCounts(voxels.finite, voxels.cropped, count_downsampled, len(filtered))
     return filtered, counts
 
 

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from mvbb_ros.common.workers import split_rows, Workers, workers
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,6 +53,8 @@ __all__ = ['LEAF_SIZE', 'mean_neighbor_distances', 'remove_statistical_outliers'
 LEAF_SIZE = 12
 #: Deepest tree :func:`_build` makes (2**40 leaves: more points than memory holds).
 _MAX_DEPTH = 40
+#: Fewer points than this are queried on one thread (a split would cost more than it saves).
+MIN_SPLIT_POINTS = 2000
 
 
 @njit
@@ -235,19 +238,27 @@ def _query(
     return filled
 
 
-@njit(
-    types.float64[::1](types.Array(types.float64, 2, 'C', readonly=True), types.int64),
-    cache=True,
-    nogil=True,
-)
-def _mean_distances(points: Any, neighbors: Any) -> Any:
-    """Each point's mean distance to its ``min(neighbors, N)`` nearest points, itself included."""
-    count = points.shape[0]
-    result = np.zeros(count, dtype=np.float64)
-    if count == 0:
-        return result
-    tree_points, order, lower, upper, depth, starts, ends = _build(points)
-    k = min(neighbors, count)
+@njit
+def _fill(
+    tree_points: Any,
+    order: Any,
+    lower: Any,
+    upper: Any,
+    depth: Any,
+    starts: Any,
+    ends: Any,
+    k: Any,
+    begin: Any,
+    end: Any,
+    result: Any,
+) -> None:
+    """
+    Write the mean distances of the points ``begin:end`` in tree order into `result`.
+
+    Each point's answer is its own k nearest distances, whatever the query before it: the
+    previous query only bounds the search (the first of a range starts unbounded), so the
+    ranges of a split give the points the same values as one pass.
+    """
     first_leaf = (1 << depth) - 1
     best = np.empty(k + 1, dtype=np.float64)
     best[0] = -np.inf  # a sentinel for the insertion
@@ -255,7 +266,7 @@ def _mean_distances(points: Any, neighbors: Any) -> Any:
     stack_distances = np.empty(2 * _MAX_DEPTH + 2, dtype=np.float64)
     previous_x = previous_y = previous_z = 0.0
     radius = np.inf  # the previous query's k-th distance
-    for i in range(count):  # in tree order: consecutive queries are close to each other
+    for i in range(begin, end):  # in tree order: consecutive queries are close to each other
         x, y, z = tree_points[i, 0], tree_points[i, 1], tree_points[i, 2]
         # The previous point's k neighbours are within radius + |step| of this one (triangle
         # inequality), so nothing farther needs a look; the factor covers rounding.
@@ -276,6 +287,67 @@ def _mean_distances(points: Any, neighbors: Any) -> Any:
         result[order[i]] = total / k
         radius = np.sqrt(best[k])
         previous_x, previous_y, previous_z = x, y, z
+
+
+@njit(
+    types.float64[::1](types.Array(types.float64, 2, 'C', readonly=True), types.int64),
+    cache=True,
+    nogil=True,
+)
+def _mean_distances(points: Any, neighbors: Any) -> Any:
+    """Each point's mean distance to its ``min(neighbors, N)`` nearest points, itself included."""
+    count = points.shape[0]
+    result = np.zeros(count, dtype=np.float64)
+    if count == 0:
+        return result
+    tree_points, order, lower, upper, depth, starts, ends = _build(points)
+    _fill(tree_points, order, lower, upper, depth, starts, ends, min(neighbors, count), 0, count,
+          result)  # fmt: skip
+    return result
+
+
+@njit(cache=True, nogil=True)
+def _tree(points: Any) -> Any:
+    """Return :func:`_build` of `points` (for the queries split over workers)."""
+    return _build(points)
+
+
+@njit(cache=True, nogil=True)
+def _fill_range(
+    tree_points: Any,
+    order: Any,
+    lower: Any,
+    upper: Any,
+    depth: Any,
+    starts: Any,
+    ends: Any,
+    k: Any,
+    begin: Any,
+    end: Any,
+    result: Any,
+) -> None:
+    """Run :func:`_fill` on one range of the points in tree order (one worker's share)."""
+    _fill(tree_points, order, lower, upper, depth, starts, ends, k, begin, end, result)
+
+
+def _mean_distances_split(
+    points: NDArray[np.float64], neighbors: int, pool: Workers
+) -> NDArray[np.float64]:
+    """Return :func:`_mean_distances`, the queries split in ranges of tree order over `pool`."""
+    count = points.shape[0]
+    result = np.zeros(count, dtype=np.float64)
+    if count == 0:
+        return result
+    tree_points, order, lower, upper, depth, starts, ends = _tree(points)
+    k = min(neighbors, count)
+
+    def fill(part: slice) -> None:  # each range writes its own points' entries of `result`
+        _fill_range(
+            tree_points, order, lower, upper, depth, starts, ends, k, part.start, part.stop,
+            result,
+        )  # fmt: skip
+
+    pool.spread(fill, split_rows(pool, count))
     return result
 
 
@@ -310,13 +382,16 @@ def _readonly_points(points: ArrayLike) -> NDArray[np.float64]:
     return array
 
 
-def mean_neighbor_distances(points: ArrayLike, nb_neighbors: int) -> NDArray[np.float64]:
+def mean_neighbor_distances(
+    points: ArrayLike, nb_neighbors: int, pool: Workers | None = None
+) -> NDArray[np.float64]:
     """
     Return each point's mean distance to its nearest points, Open3D's way (itself included).
 
     :param points: finite points ``(N, 3)`` (converted to float64).
     :param nb_neighbors: k, >= 1; ``min(k, N)`` distances are averaged, the point's own zero
         distance among them.
+    :param pool: workers to split the queries over (the same distances with any), or None.
     :return: the mean distances ``(N,)``, float64.
     :raises ValueError: for ``nb_neighbors < 1`` or non-finite points.
     """
@@ -325,11 +400,13 @@ def mean_neighbor_distances(points: ArrayLike, nb_neighbors: int) -> NDArray[np.
     array = _readonly_points(points)
     if not np.isfinite(array).all():
         raise ValueError('points must be finite')
+    if pool is not None and pool.parallel and len(array) >= MIN_SPLIT_POINTS:
+        return _mean_distances_split(array, int(nb_neighbors), pool)
     return _mean_distances(array, int(nb_neighbors))
 
 
 def remove_statistical_outliers(
-    points: ArrayLike, nb_neighbors: int, std_ratio: float
+    points: ArrayLike, nb_neighbors: int, std_ratio: float, pool: Workers | None = None
 ) -> NDArray[np.intp]:
     """
     Return the indices of the points that Open3D's ``remove_statistical_outlier`` keeps.
@@ -338,13 +415,14 @@ def remove_statistical_outliers(
     :param nb_neighbors: neighbours of each point, itself included, >= 1.
     :param std_ratio: a point is kept when its mean neighbour distance is below the cloud's
         mean plus this many standard deviations; > 0.
+    :param pool: workers to split the neighbour queries over (the same result with any).
     :return: the kept indices, increasing; empty for fewer than two points (Open3D's result).
     :raises ValueError: for ``nb_neighbors < 1``, ``std_ratio <= 0`` (Open3D refuses both) or
         non-finite points.
     """
     if not (np.isfinite(std_ratio) and std_ratio > 0.0):
         raise ValueError(f'std_ratio must be finite and > 0, got {std_ratio!r}')
-    distances = mean_neighbor_distances(points, nb_neighbors)
+    distances = mean_neighbor_distances(points, nb_neighbors, pool)
     if len(distances) < 2:
         return np.empty(0, dtype=np.intp)
     return _kept(distances, float(std_ratio)).astype(np.intp, copy=False)
@@ -352,4 +430,6 @@ def remove_statistical_outliers(
 
 def warm_up() -> None:
     """Run every kernel of this module once (see :mod:`mvbb_ros.kernels`)."""
-    remove_statistical_outliers(np.arange(15, dtype=np.float64).reshape(5, 3) ** 2, 3, 1.0)
+    points = np.arange(15, dtype=np.float64).reshape(5, 3) ** 2
+    remove_statistical_outliers(points, 3, 1.0)
+    _mean_distances_split(_readonly_points(points), 3, workers(1))

@@ -16,6 +16,7 @@ import time
 from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray, IndexArray
+from mvbb_ros.common.workers import Task, workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition.tree import decompose, Decomposition
 from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
@@ -30,7 +31,10 @@ from mvbb_ros.pipeline.filtering import (
     crop_points,
     filter_points,
     FilterCounts,
+    outlier_step,
     voxel_down_sample,
+    voxel_step,
+    Voxels,
 )
 from mvbb_ros.pipeline.scene import (
     find_scene,
@@ -346,6 +350,8 @@ def process_points(
         metres (:func:`implausible_extent`) or too few points remain.
     """
     settings = settings if settings is not None else PipelineSettings()
+    count = settings.execution.workers
+    pool = None if count == 1 else workers(count)
     timings = dict(timings_ms or {})
     start = time.perf_counter()
     array = np.asarray(points)
@@ -369,6 +375,20 @@ def process_points(
         # only, not on the whole room. Without a table the cloud is filtered as without the
         # scene stage, from the start.
         start = time.perf_counter()
+        unfiltered: Task[Voxels] | None = None
+        if pool is not None:
+            # A cloud without a table (a segmented object) is filtered whole: its voxel grid
+            # starts now, on a helper, while this thread looks for the table; a table drops it.
+            unfiltered = pool.submit(
+                lambda: voxel_step(
+                    array,
+                    voxel_size=filtering.voxel_size,
+                    crop_min=filtering.crop_min,
+                    crop_max=filtering.crop_max,
+                    bounds=bounds,
+                    finite=finite,
+                )
+            )
         scoped = array
         if bounds is None:  # not cropped by the decoder
             scoped = crop_points(array, filtering.crop_min, filtering.crop_max)
@@ -384,19 +404,30 @@ def process_points(
             )
         timings['scene'] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
-        if scene.support is None:
+        if scene.support is None and unfiltered is not None:
+            filtered, counts = outlier_step(
+                unfiltered.result(),
+                filtering.outlier_neighbors,
+                filtering.outlier_std_ratio,
+                pool,
+            )
+        elif scene.support is None:
             filtered, counts = filter_points(
-                array, bounds=bounds, finite=finite, **asdict(filtering)
+                array, bounds=bounds, finite=finite, pool=pool, **asdict(filtering)
             )
         else:
+            if unfiltered is not None:
+                unfiltered.cancel()
             standing_points = scoped[standing_mask(scoped, scene.support, settings.scene)]
             uncropped = replace(filtering, crop_min=(), crop_max=())
-            filtered, counts = filter_points(standing_points, **asdict(uncropped))
+            filtered, counts = filter_points(standing_points, pool=pool, **asdict(uncropped))
             whole = len(array) if finite is None else finite
             counts = replace(counts, finite=int(whole), cropped=len(scoped))
         timings['filter'] = (time.perf_counter() - start) * 1e3
     else:
-        filtered, counts = filter_points(array, bounds=bounds, finite=finite, **asdict(filtering))
+        filtered, counts = filter_points(
+            array, bounds=bounds, finite=finite, pool=pool, **asdict(filtering)
+        )
         timings['filter'] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
         if settings.scene.support_plane != 'none' and len(filtered) >= min_points:
@@ -479,10 +510,12 @@ def process_points(
             f'({left_out} points left out)'
         )
         groups = groups[: view.max_objects]
-    objects = []
     timings['completion'] = timings['decompose'] = 0.0
-    for index, members in enumerate(groups):
+    refining = settings.refinement.enabled
+
+    def one_object(index: int) -> tuple[ObjectResult, Task[SurfaceModel] | None, float, float]:
         start = time.perf_counter()
+        members = groups[index]
         observed = standing[members]
         floor = None if support is None or up is None else resting_floor(observed, support, up)
         shape = complete_view(
@@ -492,18 +525,34 @@ def process_points(
             up=up,
             spacing=spacing,
             floor=floor,
+            pool=pool,
         )
-        timings['completion'] += (time.perf_counter() - start) * 1e3
+        completion_ms = (time.perf_counter() - start) * 1e3
+        surface = None
+        if pool is not None and refining and shape.method != 'none':
+            # The refinement's surface needs the shape only: made while the shape decomposes.
+            surface = pool.submit(lambda: shape_surface(shape, floor, spacing, up))
         start = time.perf_counter()
-        decomposition = decompose(shape.points, **asdict(settings.decomposition))
-        timings['decompose'] += (time.perf_counter() - start) * 1e3
-        objects.append(ObjectResult(index, members, shape, decomposition, floor))
+        decomposition = decompose(shape.points, pool=pool, **asdict(settings.decomposition))
+        decompose_ms = (time.perf_counter() - start) * 1e3
+        item = ObjectResult(index, members, shape, decomposition, floor)
+        return item, surface, completion_ms, decompose_ms
+
+    if pool is None:
+        done = [one_object(index) for index in range(len(groups))]
+    else:
+        # Objects at once, in order; each object's own fits and surface use the rest.
+        done = pool.spread(one_object, range(len(groups)))
+    objects = [item for item, *_ in done]
+    surfaces = [surface for _, surface, *_ in done]
+    for _, _, completion_ms, decompose_ms in done:
+        timings['completion'] += completion_ms
+        timings['decompose'] += decompose_ms
 
     start = time.perf_counter()
     result = empty(None)
     result.objects = objects
     result.capped = capped
-    refining = settings.refinement.enabled
     options = asdict(settings.grasps)
     if refining:
         options['max_grasps'] = 0  # every hypothesis is a seed
@@ -519,7 +568,10 @@ def process_points(
     timings['grasps'] = (time.perf_counter() - start) * 1e3
     if refining:
         start = time.perf_counter()
-        models = [object_surface(item, spacing, up) for item in objects]
+        models = [
+            object_surface(item, spacing, up) if surface is None else surface.result()
+            for item, surface in zip(objects, surfaces, strict=True)
+        ]
         result.refinement = refine_grasps(
             result.grasps,
             result.leaves,
@@ -528,6 +580,7 @@ def process_points(
             settings.refinement,
             grasp_view(settings, up),
             previous,
+            pool=pool,
         )
         result.grasps = result.refinement.grasps
         timings['refine'] = (time.perf_counter() - start) * 1e3
@@ -593,12 +646,21 @@ def object_surface(item: ObjectResult, spacing: float, up: ArrayLike | None) -> 
     object's leaf boxes stand for it: their volume is sampled every `spacing`.
     """
     shape = item.shape
-    points = shape.points
     if shape.method == 'none' and item.decomposition.leaves:
         filled = [box_samples(box, spacing) for box in item.decomposition.leaves]
-        points = np.concatenate([points, *filled])
+        points = np.concatenate([shape.points, *filled])
+        return surface_model(
+            points, observed=shape.observed, cell=spacing, up=up, support_floor=item.support_floor
+        )
+    return shape_surface(shape, item.support_floor, spacing, up)
+
+
+def shape_surface(
+    shape: CompletedView, floor: float | None, spacing: float, up: ArrayLike | None
+) -> SurfaceModel:
+    """Return the surface of an object's shape (its observed and estimated points)."""
     return surface_model(
-        points, observed=shape.observed, cell=spacing, up=up, support_floor=item.support_floor
+        shape.points, observed=shape.observed, cell=spacing, up=up, support_floor=floor
     )
 
 

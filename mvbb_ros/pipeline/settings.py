@@ -15,6 +15,8 @@ not load Open3D, which the filters use):
   defaults;
 * ``refinement``: :class:`~mvbb_ros.geometry.grasping.refinement_settings.RefinementSettings`; off
   (the paper);
+* ``execution``: :class:`ExecutionSettings` (this module): how many threads process a cloud
+  (the results are the same with any);
 * ``node``: :class:`NodeSettings` (this module): what only the node uses.
 
 :data:`SPECS` lists every tunable the node exposes, once: its flat parameter name (the ROS
@@ -41,12 +43,17 @@ import math
 import typing
 from typing import Any, get_args, Literal
 
+from mvbb_ros.common.workers import default_workers, MAX_WORKERS
 from mvbb_ros.geometry.decomposition.split import SPLIT_MEASURES
 from mvbb_ros.geometry.decomposition.tree import DecompositionSettings
 from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import Completion, COMPLETIONS
 from mvbb_ros.pipeline.scene import SceneSettings, SUPPORT_MODES
+
+#: The default worker count of this process (:func:`~mvbb_ros.common.workers.default_workers`:
+#: its cores, at most 8), fixed at import.
+DEFAULT_WORKERS = default_workers()
 
 #: What the range checks accept: (low, high) inclusive; None for no bound.
 Range = tuple[float | None, float | None]
@@ -116,6 +123,20 @@ class ViewSettings:
 
 
 @dataclass(frozen=True)
+class ExecutionSettings:
+    """
+    How the pipeline runs: on how many threads. The results are the same with any.
+
+    :ivar workers: threads that run the compiled kernels of one cloud (the calling thread and
+        ``workers - 1`` helpers, :mod:`mvbb_ros.common.workers`); 1 runs everything on the
+        calling thread. The default is the cores this process may use, at most
+        :data:`~mvbb_ros.common.workers.MAX_DEFAULT_WORKERS`.
+    """
+
+    workers: int = DEFAULT_WORKERS
+
+
+@dataclass(frozen=True)
 class NodeSettings:
     """
     The settings of the node itself, beyond the pipeline's stages.
@@ -157,6 +178,8 @@ class SettingSpec:
         an empty vector); None when the field is never None.
     :ivar smallest_on: for a number whose 0 turns a feature off, the smallest other value (the
         work below it cannot be bounded); None when every value of the range is accepted.
+    :ivar machine_default: what the default is when it depends on the machine (the parameter
+        files then name it instead of writing this machine's value); None otherwise.
     """
 
     name: str
@@ -171,6 +194,7 @@ class SettingSpec:
     node_default: Any = STAGE_DEFAULT
     unset: Any = None
     smallest_on: float | None = None
+    machine_default: str | None = None
 
     @property
     def attribute(self) -> str:
@@ -591,6 +615,16 @@ SPECS: tuple[SettingSpec, ...] = (
         'Publish at most this many grasps, best first; 0 publishes all.',
         (0, 10000),
     ),
+    # How the pipeline runs.
+    SettingSpec(
+        'workers',
+        ExecutionSettings,
+        int,
+        'Threads that process one cloud (the same results with any number); 1 runs it all on '
+        'one thread. Default: the cores the process may use, at most 8.',
+        (1, MAX_WORKERS),
+        machine_default='the cores this process may use, at most 8',
+    ),
     # Node behaviour.
     SettingSpec(
         'publish_tree',
@@ -658,6 +692,7 @@ class PipelineSettings:
     :ivar decomposition: the fit-and-split decomposition (``decompose``'s arguments).
     :ivar grasps: the grasp hypotheses (``grasp_hypotheses``' arguments).
     :ivar refinement: the hypotheses checked, refined and scored on the points.
+    :ivar execution: how many threads process a cloud (not what comes out).
     :ivar node: what only the node uses (the tree topic, the input QoS).
     """
 
@@ -671,6 +706,7 @@ class PipelineSettings:
     refinement: RefinementSettings = field(
         default_factory=lambda: _node_defaults(RefinementSettings)
     )
+    execution: ExecutionSettings = field(default_factory=lambda: _node_defaults(ExecutionSettings))
     node: NodeSettings = field(default_factory=lambda: _node_defaults(NodeSettings))
 
     @classmethod
@@ -683,6 +719,7 @@ class PipelineSettings:
             decomposition=DecompositionSettings(),
             grasps=GraspSettings(),
             refinement=RefinementSettings(),
+            execution=ExecutionSettings(),
             node=NodeSettings(),
         )
 

@@ -157,7 +157,10 @@ def parameters_yaml(settings: PipelineSettings, header: str, width: int = 95) ->
             spec.description, width, initial_indent='    # ', subsequent_indent='    # '
         )
         value = settings.value(spec.name)
-        if spec.kind is list and not value:
+        if spec.machine_default is not None and value == spec.default:
+            # The same file on every machine: the default is named, not this machine's value.
+            lines.append(f'    # {spec.name}: {spec.machine_default}   (unset: the default)')
+        elif spec.kind is list and not value:
             placeholder = '[x, y, z]' if spec.vector_length == 3 else '[...]'
             lines.append(f'    # {spec.name}: {placeholder}   (unset: off)')
         else:

@@ -24,7 +24,7 @@ from mvbb_ros.cli.demo import demo_clouds, DEMO_FRAME, DEMO_TOPIC
 from mvbb_ros.cli.main import main
 from mvbb_ros.fleet.inputs import expand_inputs, InputError, Setting, sweep_settings
 from mvbb_ros.fleet.run import check_output_folder, FleetError, make_jobs
-from mvbb_ros.fleet.tasks import completed_rows, STAGING
+from mvbb_ros.fleet.tasks import completed_rows, settings_digest, STAGING
 from mvbb_ros.pipeline.settings import PipelineSettings, PRESETS
 from mvbb_ros.ros.bag import CloudBag, jazzy_typestore, write_cloud_bag
 import pyarrow.parquet as pq
@@ -471,3 +471,11 @@ def test_ctrl_c_leaves_no_half_written_output_and_a_rerun_completes(bags, tmp_pa
         assert same_tree(output / bag.name, reference)
     statuses = {row['bag']: row['status'] for row in _summary(output)}
     assert {statuses[bag.name] for bag in finished} <= {'resumed'}
+
+
+def test_the_settings_digest_ignores_the_worker_threads(bags):
+    base = PipelineSettings()
+    bag = next(iter(bags.values()))
+    digest = settings_digest(bag, base.updated({'workers': 1}), {})
+    assert settings_digest(bag, base.updated({'workers': 3}), {}) == digest
+    assert settings_digest(bag, base.updated({'gain_threshold': 0.9}), {}) != digest

@@ -170,3 +170,27 @@ def test_float32_input_is_the_same_as_float64():
         remove_statistical_outliers(points, 20, 2.0),
         remove_statistical_outliers(points.astype(np.float64), 20, 2.0),
     )
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    count=st.integers(1, 6000),
+    neighbors=st.integers(1, 40),
+    duplicates=st.booleans(),
+)
+def test_the_queries_split_over_workers_give_the_same_distances(
+    seed, count, neighbors, duplicates
+):
+    from mvbb_ros.common.workers import workers
+
+    rng = np.random.default_rng(seed)
+    points = rng.normal(0.0, 1.0, (count, 3)) * rng.uniform(0.01, 3.0, 3)
+    if duplicates:
+        points[rng.integers(0, count, count // 3)] = points[0]  # ties in the k-th distance
+    alone = mean_neighbor_distances(points, neighbors)
+    for count_workers in (2, 3):
+        split = mean_neighbor_distances(points, neighbors, workers(count_workers))
+        assert split.tobytes() == alone.tobytes()
+    kept = remove_statistical_outliers(points, neighbors, 1.0)
+    assert np.array_equal(kept, remove_statistical_outliers(points, neighbors, 1.0, workers(2)))

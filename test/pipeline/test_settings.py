@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import typing
 
 from mvbb_ros import decompose, grasp_hypotheses, PipelineSettings, process_points
@@ -16,6 +17,7 @@ from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import COMPLETIONS
 from mvbb_ros.pipeline.scene import SceneSettings
 from mvbb_ros.pipeline.settings import (
+    ExecutionSettings,
     FilterSettings,
     NodeSettings,
     PRESETS,
@@ -23,6 +25,7 @@ from mvbb_ros.pipeline.settings import (
     SPECS,
     STAGE_DEFAULT,
     STAGES,
+    validate_setting,
     ViewSettings,
 )
 from mvbb_ros.pipeline.settings_text import (
@@ -62,6 +65,7 @@ def test_every_spec_sets_a_typed_field_of_a_stage():
         DecompositionSettings,
         GraspSettings,
         RefinementSettings,
+        ExecutionSettings,
         NodeSettings,
     ], 'pipeline order'
     for stage in STAGES.values():
@@ -216,3 +220,19 @@ def test_the_gripper_files_describe_a_hand_the_settings_accept(name):
     assert settings.refinement.palm_width == values['palm_width']
     assert settings.grasps.gripper_max_width == values['gripper_max_width']
     assert values['palm_width'] >= values['gripper_max_width'] + 2 * values['finger_thickness']
+
+
+def test_workers_default_to_the_cores_the_process_may_use_and_refuse_fewer_than_one():
+    cores = len(os.sched_getaffinity(0))
+    assert PipelineSettings().execution.workers == min(cores, 8)
+    assert PipelineSettings.paper().execution == ExecutionSettings()
+    assert PipelineSettings().updated({'workers': 3}).execution.workers == 3
+    for bad in (0, -1, 65, 1.5, True, '2'):
+        assert validate_setting('workers', bad) is not None, bad
+        with pytest.raises(ValueError, match='workers must be'):
+            PipelineSettings().updated({'workers': bad})
+    # The parameter files are the same on every machine: they name the default.
+    for name, text in config_files().items():
+        assert '# workers: the cores this process may use, at most 8' in text, name
+        assert 'workers' not in read_params_file(REPO_ROOT / 'config' / name), name
+    assert parse_assignments([format_assignment('workers', 2)]) == {'workers': 2}

@@ -26,8 +26,9 @@ from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from support.ros_graph import Graph
+from support.ros_graph import Graph, set_parameter
 from support.shapes import l_shape_points
+from visualization_msgs.msg import Marker
 
 
 def _hostile_values(spec) -> list:
@@ -329,3 +330,61 @@ def test_a_parameter_file_that_is_not_yaml_stops_the_node_with_one_line(tmp_path
     assert result.returncode == 2, result.stderr
     assert 'decomposer: cannot start' in result.stderr and 'broken.yaml' in result.stderr
     assert 'Traceback' not in result.stdout + result.stderr
+
+
+def _answers(graph: Graph, sec: int) -> tuple[list, list]:
+    """Return the grasp poses and the box cubes of every answer stamped `sec`, in order."""
+    grasps = [
+        [(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
+          p.orientation.z, p.orientation.w) for p in message.poses]
+        for message in graph.grasps
+        if message.header.stamp.sec == sec
+    ]  # fmt: skip
+    boxes = [
+        [(m.pose.position.x, m.pose.position.y, m.pose.position.z, m.pose.orientation.x,
+          m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w, m.scale.x,
+          m.scale.y, m.scale.z) for m in message.markers if m.type == Marker.CUBE]
+        for message in graph.boxes
+        if message.markers and message.markers[0].header.stamp.sec == sec
+    ]  # fmt: skip
+    return grasps, boxes
+
+
+@pytest.mark.ros
+def test_workers_change_at_runtime_the_answer_does_not_and_fewer_than_one_is_refused():
+    """The workers parameter through the node: set at start, changed live, bad values refused."""
+    from mvbb_ros.evaluation.synthetic import table_top_frame
+
+    graph = Graph(parameter_overrides=[Parameter('workers', value=1)])
+    try:
+        assert graph.node.settings.execution.workers == 1
+        frame = table_top_frame(1, 3).points
+        publisher = graph.publisher()
+
+        def answer(sec: int) -> tuple[list, list]:
+            # A frame id of its own: no previous grasp of the same frame (hysteresis) applies.
+            cloud = create_cloud_xyz(
+                frame.reshape(-1, 3), organized_shape=frame.shape[:2], frame_id=f'camera_{sec}'
+            )
+            cloud.header.stamp.sec = sec
+            graph.publish_until_answered(publisher, cloud)
+            assert graph.spin_until(lambda: all(_answers(graph, sec)), timeout_s=10.0), (
+                'boxes and grasps'
+            )
+            grasps, boxes = _answers(graph, sec)
+            return grasps[0], boxes[0]
+
+        first = answer(41)
+        assert first[0] and first[1], 'grasps and boxes'
+        for count in (2, 3):
+            successful, reason = set_parameter(graph, 'workers', count)
+            assert successful, reason
+            assert graph.node.settings.execution.workers == count
+            assert answer(40 + count) == first, f'{count} workers'
+        for bad in (0, -2):
+            successful, reason = set_parameter(graph, 'workers', bad)
+            assert not successful and 'workers' in reason and 'range' in reason, reason
+        assert graph.node.settings.execution.workers == 3
+        assert graph.node.get_parameter('workers').value == 3
+    finally:
+        graph.close()

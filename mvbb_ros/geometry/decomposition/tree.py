@@ -17,6 +17,7 @@ splitting (over 30 boxes where the paper has 5); surface samples of the same mes
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 import heapq
 import json
@@ -24,6 +25,7 @@ import math
 from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import IndexArray
+from mvbb_ros.common.workers import gather, Workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
 from mvbb_ros.geometry.decomposition import split as splitting
@@ -382,6 +384,7 @@ def _best_split(
     settings: DecompositionSettings,
     fit_parts: bool,
     others: float | None = None,
+    pool: Workers | None = None,
 ) -> _Split | None:
     """
     Find the split of a node: the paper's theta*, or the best of k real fits (rescoring).
@@ -396,7 +399,11 @@ def _best_split(
         larger part alone keeps Theta* at t or above, the cut with the smallest such box is
         returned with only that bound (no other part's box can lower Theta*). None fits the
         parts needed to rank the cuts (the ``'gain'`` order ranks splits before A is known).
+    :param pool: workers that fit every candidate's parts at once (the larger parts, then the
+        others ahead of need; the split is the same), or None to fit on this thread as needed.
     """
+    if pool is not None and pool.parallel and fit_parts:
+        return _best_split_parallel(points, draft, settings, others, pool)
     box = draft.box
     local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
     scores = splitting.score_cuts(
@@ -436,6 +443,80 @@ def _best_split(
         if best is None or split.volume < best.volume - margin:
             best = split
     return best
+
+
+def _best_split_parallel(
+    points: NDArray[np.float64],
+    draft: _Draft,
+    settings: DecompositionSettings,
+    others: float | None,
+    pool: Workers,
+) -> _Split | None:
+    """
+    Return :func:`_best_split` with fitted parts, its box fits spread over `pool`.
+
+    The same cuts, fits and choices as the serial path: every fit is a pure function of its
+    points and the seed. The larger parts are fitted first, the other parts are started at once
+    too, ahead of need; the fits the serial path would skip are cancelled when not yet started.
+    """
+    box = draft.box
+    local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
+    scores = splitting.score_cuts(
+        local,
+        cells=settings.grid_cells,
+        measure=settings.split_measure,
+        min_thickness=settings.min_thickness,
+    )
+    limit = max(1, settings.rescore_cuts)
+    cuts = []
+    for cut in splitting.candidate_cuts(scores, draft.box, limit=limit):
+        upper = splitting.cut_mask(scores, cut)
+        parts = (draft.point_indices[~upper], draft.point_indices[upper])
+        larger = 0 if len(parts[0]) >= len(parts[1]) else 1
+        cuts.append((cut, parts, larger))
+    if not cuts:
+        return None
+
+    def fit(indices: IndexArray) -> Callable[[], Box]:
+        return lambda: fit_part(np.take(points, indices, axis=0), seed=settings.seed)
+
+    first_fits = [pool.submit(fit(parts[larger])) for _, parts, larger in cuts]
+    second_fits = [pool.submit(fit(parts[1 - larger])) for _, parts, larger in cuts]
+    try:
+        firsts = gather(first_fits)
+        candidates = [
+            (cut, parts, larger, first)
+            for (cut, parts, larger), first in zip(cuts, firsts, strict=True)
+        ]
+        if others is not None and not any(
+            _theta_star(draft, first.volume, others) < settings.gain_threshold for first in firsts
+        ):
+            cut, parts, _, first = min(candidates, key=lambda candidate: candidate[3].volume)
+            return _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
+        paper_cut = candidates[0][0]
+        best: _Split | None = None
+        for (cut, parts, larger, first), second_fit in zip(candidates, second_fits, strict=True):
+            margin = (
+                RESCORE_MARGIN * box.volume if best is not None and best.cut is paper_cut else 0.0
+            )
+            if best is not None and not first.volume < best.volume - margin:
+                continue
+            second_fit.run_if_waiting()
+            for ahead in reversed(second_fits):
+                if second_fit.done():
+                    break
+                # While a helper fits this part, this thread fits the others ahead of need
+                # (most are needed; each is fitted once either way).
+                ahead.run_if_waiting()
+            second = second_fit.result()
+            boxes = (first, second) if larger == 0 else (second, first)
+            split = _Split(cut=cut, parts=parts, boxes=boxes)
+            if best is None or split.volume < best.volume - margin:
+                best = split
+        return best
+    finally:
+        for task in (*first_fits, *second_fits):
+            task.cancel()
 
 
 def _others(index: int, leaf_volumes: dict[int, float]) -> float:
@@ -482,6 +563,7 @@ def _record_gain(draft: _Draft, split: _Split, others: float) -> float:
 def decompose(
     points: ArrayLike,
     *,
+    pool: Workers | None = None,
     gain_threshold: float = DEFAULT_GAIN_THRESHOLD,
     min_points: int = DEFAULT_MIN_POINTS,
     split_measure: splitting.SplitMeasure = 'area',
@@ -579,6 +661,8 @@ def decompose(
         as the sensor can resolve (``docs/single_views.md``).
     :return: the decomposition: the tree (``nodes``, ``root``), the leaves in node order with
         their point indices, the dropped points and the settings.
+    :param pool: workers that fit the candidate cuts' parts at once (:func:`_best_split`);
+        the decomposition is the same with any, and with None (every fit on this thread).
     :raises ValueError: for an empty point array, a shape other than (N, 3), non-finite
         coordinates or an invalid setting; the message says which.
     """
@@ -615,7 +699,7 @@ def decompose(
         for i in indices:
             if settings.order == 'gain':
                 # Best first needs every leaf's best split up front (each is fitted once anyway).
-                splits[i] = _best_split(pts, drafts[i], settings, fit_parts=True)
+                splits[i] = _best_split(pts, drafts[i], settings, fit_parts=True, pool=pool)
                 priority = _reduction(drafts[i], splits[i])
             else:
                 priority = drafts[i].box.volume
@@ -631,7 +715,7 @@ def decompose(
             split = splits.pop(index)
         else:
             may_pass = _may_pass(draft, others, settings.gain_threshold)
-            split = _best_split(pts, draft, settings, fit_parts=may_pass, others=others)
+            split = _best_split(pts, draft, settings, fit_parts=may_pass, others=others, pool=pool)
         if split is None:
             draft.stop_reason = 'no_cut'
             continue

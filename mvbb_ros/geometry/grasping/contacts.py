@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 from mvbb_ros.arrays import FloatArray
+from mvbb_ros.common.workers import split_rows, Workers
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
 import numba as nb
@@ -545,6 +546,7 @@ def evaluate_lines(
     *,
     lenient: bool = False,
     held: bool = False,
+    pool: Workers | None = None,
 ) -> FloatArray:
     """
     Close the pad gripper along candidate lines on one surface model.
@@ -561,21 +563,45 @@ def evaluate_lines(
     :param held: with the hand described, every pad touching where the object is widest in its
         reach lies flat (at the tip too, whatever the points' normals): the check of a grasp
         that held in the previous frame, whose contacts the view's noise moves by a cell.
+    :param pool: the workers to spread the lines over (the rows are the same with any), or
+        None for the calling thread alone.
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
     depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
     up = np.zeros(3) if view.up is None else np.asarray(view.up, dtype=np.float64)
-    return _evaluate(
-        model.points,
-        model.normals,
-        model.weights,
-        np.array(origins, dtype=np.float64, order='C'),
-        np.array(approaches, dtype=np.float64, order='C'),
-        np.array(closings, dtype=np.float64, order='C'),
-        depths,
-        _parameters(settings, view, model.cell, model.floor, lenient, held),
-        up,
-    )
+    params = _parameters(settings, view, model.cell, model.floor, lenient, held)
+    origin_rows = np.array(origins, dtype=np.float64, order='C')
+    approach_rows = np.array(approaches, dtype=np.float64, order='C')
+    closing_rows = np.array(closings, dtype=np.float64, order='C')
+
+    def rows(part: slice) -> FloatArray:
+        return _evaluate(
+            model.points,
+            model.normals,
+            model.weights,
+            np.ascontiguousarray(origin_rows[part]),
+            np.ascontiguousarray(approach_rows[part]),
+            np.ascontiguousarray(closing_rows[part]),
+            depths,
+            params,
+            up,
+        )
+
+    parts = split_rows(pool, len(origin_rows))
+    if pool is None or len(parts) == 1:
+        return _evaluate(
+            model.points,
+            model.normals,
+            model.weights,
+            origin_rows,
+            approach_rows,
+            closing_rows,
+            depths,
+            params,
+            up,
+        )
+    # Each row depends on its own line only: slices of the lines give the same rows.
+    return np.concatenate(pool.spread(rows, parts))
 
 
 def warm_up() -> None:

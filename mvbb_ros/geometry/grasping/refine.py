@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import math
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
+from mvbb_ros.common.workers import Workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.grasping.contacts import (
     CLEARANCE_PADS,
@@ -520,6 +521,7 @@ def _robust_quality(
     rows: FloatArray,
     settings: RefinementSettings,
     view: GraspView,
+    pool: Workers | None = None,
 ) -> FloatArray:
     """
     Return each line's quality over pose errors, weighed with its centring.
@@ -539,7 +541,8 @@ def _robust_quality(
         if not len(mine):
             continue
         lines = (origins[mine], approaches[mine], closings[mine])
-        near = evaluate_lines(model, *_neighbours(*lines, settings.pad_size), settings, view)
+        neighbours = _neighbours(*lines, settings.pad_size)
+        near = evaluate_lines(model, *neighbours, settings, view, pool=pool)
         if settings.finger_length > 0.0:
             total[mine] = _hand_quality(model, *lines, rows[mine], near, settings.pad_size, view)
             continue
@@ -656,6 +659,8 @@ def refine_grasps(
     settings: RefinementSettings,
     view: GraspView,
     previous: Grasp | None = None,
+    *,
+    pool: Workers | None = None,
 ) -> RefinedGrasps:
     """
     Return grasps checked and scored on the points, best first (the rules: docs/grasp_rules.md).
@@ -668,6 +673,8 @@ def refine_grasps(
     :param view: the gripper, the view and the filters.
     :param previous: the previous frame's top grasp (same frame of reference), or None; it
         stays on top while it holds and scores within ``settings.hysteresis`` of the best.
+    :param pool: the workers the candidate lines are spread over (the same grasps with any),
+        or None for the calling thread alone.
     :return: the grasps and what was tried.
     """
     if not boxes or not models:
@@ -695,9 +702,9 @@ def refine_grasps(
         mine = np.flatnonzero(objects == number)
         if len(mine):
             lines = (origins[mine], approaches[mine], closings[mine])
-            rows[mine] = evaluate_lines(model, *lines, settings, view)
+            rows[mine] = evaluate_lines(model, *lines, settings, view, pool=pool)
             if not np.any(rows[mine, COL_VALID] > 0.0) and settings.finger_length > 0.0:
-                rows[mine] = evaluate_lines(model, *lines, settings, view, lenient=True)
+                rows[mine] = evaluate_lines(model, *lines, settings, view, lenient=True, pool=pool)
     valid = np.flatnonzero(rows[:, COL_VALID] > 0.0)
     # Where each valid grasp closes, and the box of its object that holds that point.
     closes = (
@@ -715,6 +722,7 @@ def refine_grasps(
         rows[valid],
         settings,
         view,
+        pool,
     )
     rows[valid, COL_QUALITY] = quality
     preference = _box_preferences(boxes, view)[box_index[valid]]

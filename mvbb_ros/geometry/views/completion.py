@@ -43,6 +43,7 @@ from mvbb_ros.arrays import (
     perpendicular_axes,
     read_only,
 )
+from mvbb_ros.common.workers import split_rows, Workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
 from mvbb_ros.geometry.boxfit.rectangle import hull_2d_kernel
@@ -187,29 +188,43 @@ def plane_violations(
     raster: ViewRaster,
     tolerance: float,
     order: IndexArray | None = None,
+    pool: Workers | None = None,
 ) -> FloatArray:
     """
     Return the share of `sample` whose mirror image contradicts the view, per plane (K, P).
 
     The planes are ``normals[k]`` (K, 3) at ``offsets[k, j]`` (K, P) from `center`; `order` is
     the order each normal's planes are tried in (default :func:`_middle_out`), which changes
-    only the shares above each normal's least (:func:`_mirror_violations`).
+    only the shares above each normal's least (:func:`_mirror_violations`). With `pool` the
+    normals are split over the workers (each normal's row is its own: the same shares).
     """
-    return _mirror_violations(
-        np.ascontiguousarray(sample, dtype=np.float64),
-        np.ascontiguousarray(center, dtype=np.float64),
-        np.ascontiguousarray(normals, dtype=np.float64),
-        np.ascontiguousarray(offsets, dtype=np.float64),
-        raster.viewpoint,
-        raster.frame,
-        raster.origin,
-        raster.cell,
-        raster.mask,
-        raster.near,
-        raster.oblique,
-        tolerance,
-        _middle_out(offsets.shape[1]) if order is None else np.ascontiguousarray(order),
-    )
+    sample = np.ascontiguousarray(sample, dtype=np.float64)
+    center = np.ascontiguousarray(center, dtype=np.float64)
+    normals = np.ascontiguousarray(normals, dtype=np.float64)
+    offsets = np.ascontiguousarray(offsets, dtype=np.float64)
+    tried = _middle_out(offsets.shape[1]) if order is None else np.ascontiguousarray(order)
+
+    def rows(part: slice) -> FloatArray:
+        return _mirror_violations(
+            sample,
+            center,
+            np.ascontiguousarray(normals[part]),
+            np.ascontiguousarray(offsets[part]),
+            raster.viewpoint,
+            raster.frame,
+            raster.origin,
+            raster.cell,
+            raster.mask,
+            raster.near,
+            raster.oblique,
+            tolerance,
+            tried,
+        )
+
+    parts = split_rows(pool, len(normals), per_worker=1)
+    if pool is None or len(parts) == 1:
+        return rows(slice(0, len(normals)))
+    return np.concatenate(pool.spread(rows, parts))
 
 
 @dataclass(frozen=True)
@@ -322,6 +337,7 @@ def find_mirror_plane(
     axes: FloatArray,
     up: FloatArray | None,
     spacing: float,
+    pool: Workers | None = None,
 ) -> MirrorPlane:
     """
     Find the plane about which the observed points mirror onto the hidden side most plausibly.
@@ -344,6 +360,7 @@ def find_mirror_plane(
     :param axes: (3, 3) rows: the observed points' box axes, extra candidate normals.
     :param up: unit up direction, or None when unknown.
     :param spacing: point spacing in metres (the depth tolerance of the test).
+    :param pool: workers to split the candidate normals over (the same plane with any).
     :return: the plane.
     """
     # An evenly spread sample that does not depend on the order of the points.
@@ -360,7 +377,7 @@ def find_mirror_plane(
     planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
 
     def refuted(offsets: FloatArray) -> FloatArray:
-        return plane_violations(sample, center, normals, offsets, raster, spacing)
+        return plane_violations(sample, center, normals, offsets, raster, spacing, pool=pool)
 
     # Per normal: the nearest position with the fewest contradictions, found on a
     # coarse ladder of positions and then on a fine one around the chosen rung.
@@ -653,6 +670,7 @@ def complete_view(
     up: ArrayLike | None = None,
     spacing: float,
     floor: float | None = None,
+    pool: Workers | None = None,
 ) -> CompletedView:
     """
     Return one object's observed points with an estimate of what the sensor could not see.
@@ -666,6 +684,8 @@ def complete_view(
     :param floor: with `up`, the height along unit `up` of the support the object rests on
         (metres), or None: the hidden side is filled down to it, not only to the lowest
         observed point, and no estimate goes below it (the table ends the object).
+    :param pool: workers: the observed points' box is fitted while the view is rastered (the
+        same solid with any), or None.
     :return: the solid, observed points first.
     :raises ValueError: for an unknown method or a non-positive spacing.
     """
@@ -677,6 +697,7 @@ def complete_view(
     eye = np.asarray(viewpoint, dtype=np.float64)
     if method == 'none' or len(pts) < 4:
         return CompletedView(pts, len(pts), method)
+    fitted = None if pool is None else pool.submit(lambda: minimum_bounding_box(pts))
     raster = view_raster(pts, eye, spacing)
     self_hidden = float(np.mean(behind_others(pts, raster, SURFACE_GAP * spacing)))
     if self_hidden > MAX_SELF_HIDDEN:
@@ -684,10 +705,12 @@ def complete_view(
             f'not one view from {eye.tolist()}: {100 * self_hidden:.0f} % of the points lie '
             'behind others (is viewpoint the sensor position in the cloud frame?)'
         )
+        if fitted is not None:
+            fitted.cancel()
         return CompletedView(pts, len(pts), method, skipped=reason)
     # The observed points' minimum box: the extrusion stops at its far faces, and its axes are
     # the object's likely symmetry directions.
-    box = minimum_bounding_box(pts)
+    box = minimum_bounding_box(pts) if fitted is None else fitted.result()
     thin, middle = np.sort(box.extents)[:2]
     if method == 'extrude' or thin <= PLATE_RATIO * middle:
         # One flat face seen gives no depth behind it, and a mirror about a vertical plane
@@ -699,7 +722,9 @@ def complete_view(
     if up is not None:
         unit_up = np.asarray(up, dtype=np.float64)
         unit_up = unit_up / np.linalg.norm(unit_up)
-    plane = find_mirror_plane(pts, raster, axes=box.rotation.T, up=unit_up, spacing=spacing)
+    plane = find_mirror_plane(
+        pts, raster, axes=box.rotation.T, up=unit_up, spacing=spacing, pool=pool
+    )
     # Keep the mirror images that add something: hidden behind the seen surface. The others
     # either repeat a seen surface or contradict the view.
     far = plane.mirror(pts)

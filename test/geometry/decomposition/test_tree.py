@@ -263,7 +263,7 @@ def fitting_every_part(points: np.ndarray, **options) -> mvbb_ros.Decomposition:
     from mvbb_ros.geometry.decomposition import split
     from mvbb_ros.geometry.decomposition import tree as decomposition
 
-    def every_part(points, draft, settings, fit_parts, others=None):
+    def every_part(points, draft, settings, fit_parts, others=None, pool=None):
         box = draft.box
         # The decomposition's own framing of the points (the cuts depend on its rounding).
         local = split.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
@@ -573,3 +573,21 @@ def test_bunny_decomposes_and_more_boxes_at_higher_threshold():
         assert_valid(result, points)
     assert 1 < len(results[0].leaves) < len(results[1].leaves)
     assert results[1].volume_ratio < results[0].volume_ratio < 1.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    points=blocks(),
+    threshold=st.sampled_from([0.9, 0.94, 0.98]),
+    cuts=st.integers(0, 4),
+    order=st.sampled_from(['volume', 'gain', 'depth']),
+)
+def test_the_fits_spread_over_workers_change_nothing(points, threshold, cuts, order):
+    from mvbb_ros.common.workers import workers
+
+    options = {'gain_threshold': threshold, 'rescore_cuts': cuts, 'order': order}
+    alone = mvbb_ros.decompose(points, **options)
+    for count in (2, 3):
+        spread = mvbb_ros.decompose(points, pool=workers(count), **options)
+        assert assert_same_tree(spread, alone) == 0, 'every gain the same, bit for bit'
+        assert [n.gain for n in spread.nodes] == [n.gain for n in alone.nodes]
