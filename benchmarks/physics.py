@@ -39,6 +39,11 @@ Node grasps are tried at their fingertip point: the published pose's origin move
 the approach (``docs/grasp_rules.md``), the point where the node means the fingertips to stop.
 Every contender but ``paper`` is tried with the trial's default approach (the fingers close at
 the given pose).
+
+``--pose-error MM,DEG`` tries each grasp as a robot with that pose error would: the pose is
+turned about its origin by a random rotation vector and shifted by a random offset (normal, the
+given standard deviations per axis), drawn from the seed, the object and the view, so every
+contender's k-th grasp of a view meets the same error (:func:`pose_errors`).
 """
 
 from __future__ import annotations
@@ -298,6 +303,44 @@ class Results:
     steadiness: list[dict[str, Any]] = field(default_factory=list)
 
 
+def pose_errors(
+    view: Any, count: int, error: tuple[float, float] | None, seed: int
+) -> list[Any] | None:
+    """
+    Return `count` rigid pose errors (4 x 4) for one view's ranks, or None without `error`.
+
+    `error` is (metres, degrees): the standard deviation of the position error along each axis
+    and of the rotation vector's components about the fingertips (a robot's calibration and
+    control). Drawn from the seed, the object and the view only, so every contender's k-th
+    grasp of a view meets the same error.
+    """
+    if error is None:
+        return None
+    import zlib
+
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    key = zlib.crc32(f'{view.placed.name}/{view.index}'.encode())
+    rng = np.random.default_rng([seed, key])
+    errors = []
+    for _ in range(count):
+        moved = np.eye(4)
+        moved[:3, 3] = rng.normal(0.0, error[0], 3)
+        turn = rng.normal(0.0, math.radians(error[1]), 3)
+        moved[:3, :3] = Rotation.from_rotvec(turn).as_matrix()
+        errors.append(moved)
+    return errors
+
+
+def with_error(pose: Any, error: Any) -> Any:
+    """Return `pose` (world) moved by `error`: turned about its own origin, then shifted."""
+    moved = pose.copy()
+    moved[:3, :3] = error[:3, :3] @ pose[:3, :3]
+    moved[:3, 3] = pose[:3, 3] + error[:3, 3]
+    return moved
+
+
 def try_view(
     view: Any,
     set_name: str,
@@ -306,8 +349,14 @@ def try_view(
     trial_settings: Any,
     target: Any,
     results: Results,
+    errors: list[Any] | None = None,
 ) -> None:
-    """Run every contender on one view, try their first grasps, judge them; add the rows."""
+    """
+    Run every contender on one view, try their first grasps, judge them; add the rows.
+
+    `errors` (:func:`pose_errors`, one per rank) move each grasp before its trial: what a robot
+    with that pose error would do with it. The records keep the proposed pose.
+    """
     from mvbb_ros.evaluation.grasp_judge import judge_grasps, PadGripper, STATUS_NAMES
     from mvbb_ros.evaluation.physics import trial
     import numpy as np
@@ -328,8 +377,9 @@ def try_view(
         # Best first, each from the same start with the hand fully open, until one holds: the
         # first success decides top-1 and top-5, the grasps after it cannot change either.
         stages, successes, advances, details = [], [], [], []
-        for pose in poses:
-            outcome = trial.try_grasp(view.placed.obj, view.placed.pose, pose, hand, settings)
+        for rank, pose in enumerate(poses):
+            tried = pose if errors is None else with_error(pose, errors[rank])
+            outcome = trial.try_grasp(view.placed.obj, view.placed.pose, tried, hand, settings)
             stages.append(str(outcome.stage))
             details.append(outcome.detail)
             successes.append(bool(outcome.success))
@@ -403,6 +453,7 @@ def run(
     steady_frames: int = 0,
     drift: float = 0.0,
     trial_settings: Any = None,
+    pose_error: tuple[float, float] | None = None,
     log: Callable[[str], None] = print,
     checkpoint: Callable[[Results], None] | None = None,
 ) -> Results:
@@ -419,7 +470,8 @@ def run(
             target = GraspTarget(placed.vertices, placed.triangles) if judge else None
             views = 0
             for view in physics_views(placed, views_per_object, seed=seed):
-                try_view(view, set_name, proposers, hand, trial_settings, target, results)
+                errors = pose_errors(view, TOP_K, pose_error, seed)
+                try_view(view, set_name, proposers, hand, trial_settings, target, results, errors)
                 if steady_frames > 1 and 'node' in proposers:
                     same, pairs = node_steadiness(view, hand, steady_frames, drift)
                     results.steadiness.append(
@@ -769,6 +821,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar='METRES',
         help='with --steadiness: the camera moves this far sideways each frame',
     )
+    parser.add_argument(
+        '--pose-error',
+        default=None,
+        metavar='MM,DEG',
+        help="a robot's pose error: each tried grasp is moved by a random error of this "
+        'standard deviation (millimetres along each axis, degrees about each axis); the same '
+        'errors for every contender',
+    )
     parser.add_argument('--json', type=Path, default=None, metavar='OUT')
     parser.add_argument(
         '--pictures',
@@ -805,6 +865,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         args.views = quick if args.quick else FULL_VIEWS
     if args.objects is not None and args.objects < 1 or args.views < 1:
         parser.error('--objects and --views must be >= 1')
+    if args.pose_error is not None:
+        try:
+            millimetres, degrees = (float(v) for v in args.pose_error.split(','))
+        except ValueError:
+            parser.error(f'--pose-error wants MM,DEG (e.g. 2,3), got {args.pose_error!r}')
+        if not (millimetres >= 0.0 and degrees >= 0.0):
+            parser.error(f'--pose-error must not be negative, got {args.pose_error!r}')
+        args.pose_error = (millimetres / 1000.0, degrees)
     return args
 
 
@@ -822,6 +890,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         f'sets {", ".join(map(str, [*args.sets, *args.meshes]))}; {args.views} views per object; '
         f'hand {args.hand} ({100 * hand_opening(hand):.0f} cm); seed {args.seed}; '
         f'contenders {", ".join(args.contenders)}'
+        + (
+            ''
+            if args.pose_error is None
+            else f'; pose error {1000 * args.pose_error[0]:g} mm, {args.pose_error[1]:g} deg'
+        )
     )
     proposers: dict[str, Callable[[Any, Any], list[Any]]] = {}
     skipped: dict[str, str] = {}
@@ -845,6 +918,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         'views_per_object': args.views,
         'seed': args.seed,
         'top_k': TOP_K,
+        'pose_error': args.pose_error,
     }
     names = list(proposers)
 
@@ -864,6 +938,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             judge=not args.no_judge,
             steady_frames=args.steadiness,
             drift=args.drift,
+            pose_error=args.pose_error,
             log=lambda message: print(message, file=sys.stderr, flush=True),
             checkpoint=checkpoint,
         )

@@ -24,8 +24,9 @@ on its table:
    rest of the object, and a convex object has nothing on the sensor's side of its faces, so
    it fails (b)), and (d) no plane among the standing points holds :data:`WALL_SHARE` of the
    plane's own points and is :data:`WALL_WIDTH_M` wide (then the plane is a wall and the table
-   stands on it). Up to :data:`CANDIDATES` planes are tried, largest first; the first that
-   passes is the support.
+   stands on it), and (e) with ``up`` given, the refitted plane is within
+   :data:`MAX_TILT_DEG` of it. Up to :data:`CANDIDATES` planes are tried, largest first; the
+   first that passes is the support.
    Otherwise the cloud is an already segmented object and passes unchanged.
 
 On a camera frame the pipeline (:func:`mvbb_ros.pipeline.process.process_points`) runs
@@ -93,8 +94,10 @@ RANSAC_HYPOTHESES = 1024
 RANSAC_SAMPLE = 2048
 #: The least-squares refits use at most this many inliers (evenly strided).
 REFIT_POINTS = 16384
-#: With an up direction, only planes tilted at most this far from it are tried (degrees).
-MAX_TILT_DEG = 30.0
+#: With an up direction, only planes tilted at most this far from it are tried, and a refitted
+#: plane tilted further is no support (degrees): a table is level, and a face of a segmented
+#: object that passes the other tests is usually not.
+MAX_TILT_DEG = 15.0
 #: The grid of the inlier patch: this many point spacings, at least :data:`PATCH_CELL_MIN_M`.
 PATCH_CELLS = 4.0
 PATCH_CELL_MIN_M = 0.01
@@ -447,6 +450,10 @@ def find_scene(
             break
         rest[candidate.patch] = False
         normal, offset = candidate.normal, candidate.offset
+        if unit_up is not None and abs(normal @ unit_up) < math.cos(math.radians(MAX_TILT_DEG)):
+            tilt = math.degrees(math.acos(min(1.0, abs(float(normal @ unit_up)))))
+            reasons.append(f'plane {number}: tilted {tilt:.0f} deg from up_direction')
+            continue
         frame = _frame(normal)
         outline = _outline_2d(points[candidate.patch] @ frame.T)
         kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))

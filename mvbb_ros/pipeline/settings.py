@@ -612,8 +612,11 @@ SPECS: tuple[SettingSpec, ...] = (
         'max_grasps',
         GraspSettings,
         int,
-        'Publish at most this many grasps, best first; 0 publishes all.',
+        'Publish at most this many grasps, best first; 0 publishes all. With the grasp '
+        'refinement a bounded list is also cheaper: only the lines that can reach it are '
+        'checked against pose errors.',
         (0, 10000),
+        node_default=32,
     ),
     # How the pipeline runs.
     SettingSpec(

@@ -281,3 +281,35 @@ def test_the_frames_of_a_view_differ_only_in_noise_or_in_the_camera_drift(views)
     moved = frames[2].camera_pose[:3, 3] - view.camera_pose[:3, 3]
     np.testing.assert_allclose(moved, 0.004 * view.camera_pose[:3, 0], atol=1e-12)
     assert not np.array_equal(frames[0].points, frames[1].points)  # fresh noise
+
+
+def test_pose_errors_are_the_same_for_every_contender_and_move_the_grasp_rigidly(bench, views):
+    """One view's errors come from the seed and the view alone; a tried pose stays a pose."""
+    first = bench.pose_errors(views[0], bench.TOP_K, (0.002, 3.0), seed=0)
+    again = bench.pose_errors(views[0], bench.TOP_K, (0.002, 3.0), seed=0)
+    other = bench.pose_errors(views[1], bench.TOP_K, (0.002, 3.0), seed=0)
+    assert bench.pose_errors(views[0], bench.TOP_K, None, seed=0) is None
+    assert len(first) == bench.TOP_K
+    for error, same, different in zip(first, again, other, strict=True):
+        np.testing.assert_array_equal(error, same)
+        assert not np.allclose(error, different)
+        rotation = error[:3, :3]
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(rotation) > 0.0
+        angle = np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+        assert 0.0 < angle < 6 * 3.0 and 0.0 < np.linalg.norm(error[:3, 3]) < 6 * 0.002 * 3
+    pose = grasp_matrix(np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.0, -1.0]), np.eye(3)[0])
+    moved = bench.with_error(pose, first[0])
+    np.testing.assert_allclose(moved[:3, 3] - pose[:3, 3], first[0][:3, 3])
+    np.testing.assert_allclose(moved[:3, :3], first[0][:3, :3] @ pose[:3, :3])
+    # No error: the grasp is tried where it was proposed.
+    still = bench.pose_errors(views[0], 2, (0.0, 0.0), seed=0)
+    np.testing.assert_array_equal(bench.with_error(pose, still[0]), pose)
+
+
+def test_a_pose_error_is_parsed_in_millimetres_and_degrees(bench):
+    assert bench.parse_args(['--pose-error', '2,3']).pose_error == (0.002, 3.0)
+    assert bench.parse_args([]).pose_error is None
+    for bad in ('2', 'a,b', '-1,3'):
+        with pytest.raises(SystemExit):
+            bench.parse_args(['--pose-error', bad])

@@ -21,6 +21,7 @@ from mvbb_ros.pipeline.process import process_points, RESTING_GAP
 from mvbb_ros.pipeline.scene import (
     find_scene,
     inside_outline,
+    MAX_TILT_DEG,
     roi_mask,
     SceneSettings,
     standing_mask,
@@ -187,6 +188,32 @@ def test_the_plane_faces_the_sensor_and_its_outline_holds_its_points(
     # The box stands on the table (its lowest centimetre is counted as table), the table goes.
     assert scene.kept is not None and len(scene.kept) >= 1275  # the lowest 1 cm goes
     assert np.all(support.heights(points[scene.kept]) > 0.01)
+
+
+@hypothesis_settings(max_examples=15, deadline=None)
+@given(tilt=st.floats(0.0, 40.0), turn=st.floats(0.0, 360.0), seed=st.integers(0, 1000))
+def test_with_up_given_only_a_level_plane_is_a_support(tilt, turn, seed):
+    """
+    A plane tilted past MAX_TILT_DEG from the given up is no support, whatever else it passes.
+
+    A large flat face of a segmented object with a part standing on it looks like a table
+    with an object; a table is level, the face of an object lying on one usually is not.
+    """
+    rotation = Rotation.from_euler('z', turn, degrees=True).as_matrix()
+    points = _table_with_a_box(rotation, -0.8, seed)
+    tipped = Rotation.from_euler('zx', [turn, tilt], degrees=True).as_matrix()
+    scene = find_scene(
+        points,
+        SceneSettings(support_plane='auto'),
+        viewpoint=(0.0, 0.0, 0.0),
+        up=tipped[:, 2],
+        spacing=0.01,
+        min_points=25,
+    )
+    if tilt <= MAX_TILT_DEG - 0.5:
+        assert scene.support is not None, scene.reason
+    elif tilt >= MAX_TILT_DEG + 0.5:
+        assert scene.support is None and scene.kept is None
 
 
 def test_the_laptop_and_the_box_on_the_floor_are_two_objects():

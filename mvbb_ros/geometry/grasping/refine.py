@@ -574,7 +574,7 @@ def _hand_quality(
     approaches: FloatArray,
     closings: FloatArray,
     rows: FloatArray,
-    near: FloatArray,
+    near: FloatArray | None,
     pad: float,
     view: GraspView,
 ) -> FloatArray:
@@ -586,17 +586,26 @@ def _hand_quality(
     pose error, :func:`_neighbours`) that hold, the width over the opening, the object's
     centre's offset from the contacts' midpoint across the pads and along the closing line
     (over the object's reach), and how much the closing direction rises (with `up`).
+
+    `near` None (the neighbours not evaluated) gives an upper bound of the score: the share of
+    neighbours that hold at its most favourable (:func:`_pruned_ranking`).
     """
     count = len(origins)
     weights = HAND_SCORE_WEIGHTS
-    valid = (near[:, COL_VALID] > 0.0).reshape(4, count).mean(axis=0)
+    if near is None:
+        valid = np.full(count, 1.0 if weights['neighbours'] >= 0.0 else 0.0)
+    else:
+        valid = (near[:, COL_VALID] > 0.0).reshape(4, count).mean(axis=0)
     clearance = np.minimum(1.0, rows[:, COL_CLEARANCE] / (CLEARANCE_PADS * pad))
     centroid, reach = _centre_and_reach(model)
     contacts = rows[:, slice(COL_CONTACTS, COL_CONTACTS + 6)].reshape(count, 2, 3)
     middle = contacts.mean(axis=1)
     offset = centroid - middle
     side = cross(approaches, closings)
-    rise = np.zeros(count) if view.up is None else np.abs(closings @ view.up)
+    # Term by term, not a matrix product: a line's score must not depend on the batch it is in.
+    rise = np.zeros(count)
+    if view.up is not None:
+        rise = np.abs(sum(closings[:, axis] * view.up[axis] for axis in range(3)))
     z = (
         weights['support'] * rows[:, COL_SUPPORT]
         + weights['clearance'] * clearance
@@ -713,32 +722,25 @@ def refine_grasps(
         + rows[valid, COL_CENTER][:, None] * closings[valid]
     )
     box_index[valid] = _holding_boxes(closes, objects[valid], boxes, objects_of_boxes)
-    quality = _robust_quality(
-        models,
-        objects[valid],
-        origins[valid],
-        approaches[valid],
-        closings[valid],
-        rows[valid],
-        settings,
-        view,
-        pool,
-    )
-    rows[valid, COL_QUALITY] = quality
     preference = _box_preferences(boxes, view)[box_index[valid]]
-    scores = _score(quality, preference, settings)
-    ranked = np.argsort(-scores, kind='stable')
-    order, scores, centers = valid[ranked], scores[ranked], closes[ranked]
-    limit = view.max_grasps if view.max_grasps > 0 else len(order)
-    distinct = _distinct(
-        np.ascontiguousarray(centers),
-        np.ascontiguousarray(approaches[order]),
-        np.ascontiguousarray(closings[order]),
-        SAME_PADS * settings.pad_size,
-        math.cos(math.radians(SAME_ANGLE_DEG)),
-        limit + 1,
-    )
-    order, scores = order[distinct], scores[distinct]
+    limit = view.max_grasps if view.max_grasps > 0 else len(valid)
+    holding = (objects[valid], origins[valid], approaches[valid], closings[valid], rows[valid])
+    if settings.finger_length > 0.0 and view.max_grasps > 0:
+        quality, picked, scores = _pruned_ranking(
+            models, *holding, closes, preference, settings, view, limit, pool
+        )
+    else:
+        quality = _robust_quality(models, *holding, settings, view, pool)
+        picked, scores = _ranking(
+            closes,
+            approaches[valid],
+            closings[valid],
+            _score(quality, preference, settings),
+            settings,
+            limit,
+        )
+    rows[valid, COL_QUALITY] = quality
+    order = valid[picked]
     grasps = _grasps(
         rows[order],
         origins[order],
@@ -761,6 +763,104 @@ def refine_grasps(
             result.kept_previous = True
     result.grasps = result.grasps[:limit]
     return result
+
+
+def _ranking(
+    centers: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    scores: FloatArray,
+    settings: RefinementSettings,
+    limit: int,
+) -> tuple[IndexArray, FloatArray]:
+    """
+    Return the lines to publish (indices, best first) and their scores.
+
+    The best `limit` + 1 distinct grasps (:func:`_distinct`; one more than published, for the
+    previous frame's grasp to replace), ties kept in the lines' order.
+    """
+    ranked = np.argsort(-scores, kind='stable')
+    distinct = _distinct(
+        np.ascontiguousarray(centers[ranked]),
+        np.ascontiguousarray(approaches[ranked]),
+        np.ascontiguousarray(closings[ranked]),
+        SAME_PADS * settings.pad_size,
+        math.cos(math.radians(SAME_ANGLE_DEG)),
+        limit + 1,
+    )
+    return ranked[distinct], scores[ranked][distinct]
+
+
+#: The lines whose neighbours :func:`_pruned_ranking` evaluates first, per grasp published.
+PRUNE_BATCH = 4
+
+
+def _pruned_ranking(
+    models: Sequence[SurfaceModel],
+    objects: IndexArray,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    rows: FloatArray,
+    centers: FloatArray,
+    preference: FloatArray,
+    settings: RefinementSettings,
+    view: GraspView,
+    limit: int,
+    pool: Workers | None = None,
+) -> tuple[FloatArray, IndexArray, FloatArray]:
+    """
+    Return :func:`_ranking` of the hand model's scores, evaluating few lines' neighbours.
+
+    The same grasps and scores as scoring every line (:func:`_robust_quality`), cheaper: each
+    line's score with all its neighbours holding bounds its score from above, so the lines are
+    scored in the order of their bounds, in batches, until the ranking of the scored lines ends
+    above the bound of every line not scored (those can neither enter it nor, coming later,
+    remove a grasp from it). The returned quality is NaN for the lines not scored.
+
+    :return: each line's quality, the ranking's line indices and their scores.
+    """
+    count = len(origins)
+    bound = np.zeros(count)
+    for number, model in enumerate(models):
+        mine = np.flatnonzero(objects == number)
+        if len(mine):
+            bound[mine] = _hand_quality(
+                model,
+                origins[mine],
+                approaches[mine],
+                closings[mine],
+                rows[mine],
+                None,
+                settings.pad_size,
+                view,
+            )
+    # The centring's weight and the preference enter as for the exact score (both monotone).
+    bound_scores = _score(bound, preference, settings)
+    by_bound = np.argsort(-bound_scores, kind='stable')
+    quality = np.full(count, np.nan)
+    known = np.zeros(count, dtype=np.bool_)
+    size = min(count, PRUNE_BATCH * (limit + 1))
+    while True:
+        batch = by_bound[:size][~known[by_bound[:size]]]
+        lines = (objects[batch], origins[batch], approaches[batch], closings[batch], rows[batch])
+        quality[batch] = _robust_quality(models, *lines, settings, view, pool)
+        known[batch] = True
+        scored = np.flatnonzero(known)  # in the lines' order: ties break as without pruning
+        picked, scores = _ranking(
+            centers[scored],
+            approaches[scored],
+            closings[scored],
+            _score(quality[scored], preference[scored], settings),
+            settings,
+            limit,
+        )
+        if size >= count:
+            return quality, scored[picked], scores
+        # Strictly above the best bound left, with room for the bound's rounding.
+        if len(picked) == limit + 1 and scores[-1] > bound_scores[by_bound[size]] + 1e-12:
+            return quality, scored[picked], scores
+        size = min(count, 2 * size)
 
 
 def _same(first: Grasp, second: Grasp, settings: RefinementSettings) -> bool:

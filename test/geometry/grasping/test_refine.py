@@ -295,3 +295,33 @@ def test_on_a_real_scan_the_top_grasp_is_on_the_box_it_closes_in():
     assert _assert_on_the_box_that_holds_it(result) > 0
     top = result.grasps[0]
     assert result.leaf_observed_counts[top.box_index] > 0, 'the top grasp is on a seen box'
+
+
+def _grasp_rows(result) -> list[tuple[float, ...]]:
+    """Each grasp's pose, width, depth and score as plain numbers (exact comparison)."""
+    return [
+        (*g.position, *g.approach, *g.closing, g.width, g.depth, g.score) for g in result.grasps
+    ]
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.integers(0, 2**16), st.integers(1, 5), st.sampled_from([1, 5, 32]))
+def test_a_bounded_grasp_list_is_the_head_of_the_whole_list(seed, count, limit):
+    """
+    With ``max_grasps`` set only the lines that can reach the list are checked for pose errors.
+
+    The list must be exactly the first ``max_grasps`` of the whole list (poses, widths and scores
+    to the bit), whatever the batches the pruning scores its lines in.
+    """
+    from mvbb_ros.evaluation.synthetic import table_top_frame
+    from mvbb_ros.geometry.grasping import refine
+
+    frame = table_top_frame(seed, count).points.reshape(-1, 3)
+    points = frame[np.isfinite(frame).all(axis=1)]
+    whole = process_points(points, PipelineSettings().updated({'max_grasps': 0}))
+    assert len(whole.grasps) > limit, 'the scene must have more grasps than the list keeps'
+    for batch in (1, refine.PRUNE_BATCH):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(refine, 'PRUNE_BATCH', batch)
+            bounded = process_points(points, PipelineSettings().updated({'max_grasps': limit}))
+        assert _grasp_rows(bounded) == _grasp_rows(whole)[:limit]
