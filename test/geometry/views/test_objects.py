@@ -16,7 +16,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from test.support.data import scene_grid
+from support.data import scene_grid
 
 SPACING = 0.005
 
