@@ -11,7 +11,9 @@ calipers, :mod:`mvbb_ros.geometry.boxfit.rectangle`), on candidate axes from hul
 pairs (O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
 Har-Peled's grid of directions around the result. The final box is the smallest of the searched
 frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
-worse than either, and always enclosing.
+worse than either, and always enclosing. The best frame is finally walked on the sphere of axes
+in small tilts (:func:`mvbb_ros.geometry.boxfit.search.walk`): a minimal box whose faces are
+flush with hull edges rather than a facet lies between the candidate axes.
 
 What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
 (all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
@@ -20,12 +22,14 @@ What runs where, for N points whose searched hull has H vertices, F ~ 2H facets 
    frame centred on the bounding box and scaled to unit size: O(N), three passes.
 2. Clouds of ``coreset_min`` points or more (default 65,536): Barequet and Har-Peled's grid
    coreset (:func:`mvbb_ros.geometry.boxfit.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
-   points kept.
+   points kept. After the search, one pass over every point finds those sticking out of the
+   frame's box (:func:`_add_leaks`); they join the hull and the frame is walked again (at most
+   :data:`LEAK_ROUNDS` times), the last pass giving the final box.
 3. Quickhull (:func:`mvbb_ros.geometry.boxfit.hull.quickhull_kernel`) on all points or the coreset:
    O(N log H).
 4. The orientation search on the hull (:func:`mvbb_ros.geometry.boxfit.search.search_kernel`):
-   candidate ranking O(K (H + F)), then 60 to 120 axes at O(F + E + S) each for silhouettes of S
-   vertices.
+   candidate ranking O(K (H + F)), then 60 to 120 axes, and at least 8 per step of the final walk,
+   at O(F + E + S) each for silhouettes of S vertices.
 5. Enclose every point in each candidate frame: O(N).
 
 Degenerate clouds never reach the hull: the extents in the PCA frame give the affine rank (an
@@ -715,7 +719,12 @@ def fit_box(
     :param pair_edges: longest hull edges whose pairs give candidate axes.
     :param coreset_cells: columns per side of the grid coreset for large clouds (0: never).
     :param coreset_min: clouds of at least this many points are hulled on their grid coreset;
-        smaller ones on all points (the coreset costs up to 1 % of volume on the bunny scans).
+        smaller ones on all points. A coreset's frame is re-checked against every point: points
+        sticking out of its box by more than :data:`LEAK_TOLERANCE` join the hull and the
+        frame is walked again.
+    :param walk_steps: halvings of the final walk of the box's axis on the sphere (first tilt
+        :data:`WALK_STEP` radians, eight directions; 0 turns it off): it finds the minimal boxes
+        flush with two hull edges that lie between the candidate axes and the grid's.
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -804,13 +813,11 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: half the candidate axes and starts, no grid rounds,
-#: and parts of 1,000 points or more hulled on a 14 x 14 grid coreset (the hull was the largest
-#: share of a part fit). Measured with ``benchmarks/decompose.py --parts`` against the default
-#: search on the 3,218 part fits of the shared scans and models at t = 0.90/0.94/0.98: volume
-#: median 1.0000 x, mean 1.0006 x, 99th percentile 1.009 x, worst 1.044 x (16 x 16 cells: 1.0006,
-#: 1.010, 1.044; 12 x 12: 1.0008, 1.011, 1.044 but Homer's count at t = 0.98 goes from 8 to 14).
-#: Timings: ``docs/performance.md``.
+#: The knobs of a decomposition's part fits: the default candidate axes and starts, no grid
+#: rounds, a shorter walk, and parts of 2,000 points or more hulled on a 20 x 20 grid coreset
+#: (re-checked against every point, :func:`_add_leaks`). On 3,000 varied clouds
+#: (``benchmarks/boxfit_quality.py``) the volume is within 1 % of an exhaustive reference but
+#: for two clouds of 158 points (1.016, 1.014 x); quality and cost: ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
     'candidates': 32,
     'starts': 8,
@@ -879,6 +886,7 @@ def minimum_bounding_box(
     :param pair_edges: see :func:`fit_box`.
     :param coreset_cells: see :func:`fit_box`.
     :param coreset_min: see :func:`fit_box`.
+    :param walk_steps: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
