@@ -52,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     spec = importlib.util.spec_from_file_location('mvbb_bench', REPO / 'benchmarks' / 'mvbb.py')
     assert spec is not None and spec.loader is not None
     mvbb_bench = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mvbb_bench
     spec.loader.exec_module(mvbb_bench)
     clouds.update(mvbb_bench.generated_clouds(mvbb_bench.GENERATED_POINTS))
     scans = [points for name, points in clouds.items() if name.startswith('scans/')]

@@ -681,7 +681,7 @@ def walk(
             found = rotate_about(
                 vertices, normals, edges, edge_facets, work, x / norm, y / norm, z / norm, trial
             )
-            if found < volume * (1.0 - POLISH_TOLERANCE * 0.01):
+            if found < volume * (1.0 - POLISH_TOLERANCE):
                 volume = found
                 copy_frame(trial, best_frame)
                 moved = True
