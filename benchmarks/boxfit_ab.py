@@ -1,4 +1,4 @@
-"""
+r"""
 Time this tree's box fits against an older copy of the box fit package, in one process.
 
 The older package is a copy of ``mvbb_ros/geometry/boxfit`` from another commit, renamed
@@ -6,7 +6,7 @@ The older package is a copy of ``mvbb_ros/geometry/boxfit`` from another commit,
 
     mkdir -p /tmp/old && git archive f32f56c mvbb_ros/geometry/boxfit | tar -x -C /tmp/old
     mv /tmp/old/mvbb_ros/geometry/boxfit /tmp/old/oldboxfit
-    sed -i 's/mvbb_ros\\.geometry\\.boxfit/oldboxfit/g' /tmp/old/oldboxfit/*.py
+    sed -i 's/mvbb_ros\.geometry\.boxfit/oldboxfit/g' /tmp/old/oldboxfit/*.py
     taskset -c 1 .venv/bin/python benchmarks/boxfit_ab.py --old /tmp/old --rounds 5
 
 Each round times, old and new taking turns (the order swapped every round), the default fit

@@ -30,8 +30,9 @@ Cost, for a hull of H vertices, F ~ 2H facets and E ~ 3H edges: candidate rankin
 for K = F + 66 candidate axes (fewer with the binned shadow of large hulls and the 200-vertex
 width sample); then about 40 candidates, two per frame and polish round (8, 4, 2, 1 frames) and
 13 per grid round, and 8 per step of the walk (more where it moves): 100 to 200 axes,
-O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes). The volume bounds rule out about two fifths of the candidates and
-some grid directions before they are turned (on the parts of the shared scans).
+O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes). The volume
+bounds rule out about two fifths of the candidates and some grid directions before they are
+turned (on the parts of the shared scans).
 """
 
 from __future__ import annotations
