@@ -11,7 +11,9 @@ calipers, :mod:`mvbb_ros.geometry.boxfit.rectangle`), on candidate axes from hul
 pairs (O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
 Har-Peled's grid of directions around the result. The final box is the smallest of the searched
 frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
-worse than either, and always enclosing.
+worse than either, and always enclosing. The best frame is finally walked on the sphere of axes
+in small tilts (:func:`mvbb_ros.geometry.boxfit.search.walk`): a minimal box whose faces are
+flush with hull edges rather than a facet lies between the candidate axes.
 
 What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
 (all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
@@ -20,12 +22,14 @@ What runs where, for N points whose searched hull has H vertices, F ~ 2H facets 
    frame centred on the bounding box and scaled to unit size: O(N), three passes.
 2. Clouds of ``coreset_min`` points or more (default 65,536): Barequet and Har-Peled's grid
    coreset (:func:`mvbb_ros.geometry.boxfit.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
-   points kept.
+   points kept. After the search, one pass over every point finds those sticking out of the
+   frame's box (:func:`_add_leaks`); they join the hull and the frame is walked again (at most
+   :data:`LEAK_ROUNDS` times), the last pass giving the final box.
 3. Quickhull (:func:`mvbb_ros.geometry.boxfit.hull.quickhull_kernel`) on all points or the coreset:
    O(N log H).
 4. The orientation search on the hull (:func:`mvbb_ros.geometry.boxfit.search.search_kernel`):
-   candidate ranking O(K (H + F)), then 60 to 120 axes at O(F + E + S) each for silhouettes of S
-   vertices.
+   candidate ranking O(K (H + F)), then 60 to 120 axes, and at least 8 per step of the final walk,
+   at O(F + E + S) each for silhouettes of S vertices.
 5. Enclose every point in each candidate frame: O(N).
 
 Degenerate clouds never reach the hull: the extents in the PCA frame give the affine rank (an
@@ -60,6 +64,7 @@ from mvbb_ros.geometry.boxfit.search import (
     new_work,
     polish,
     search_kernel,
+    settle,
 )
 import numba as nb
 import numpy as np
@@ -75,6 +80,13 @@ ZERO_EXTENT = 1e-12
 PCA_SAMPLE = 4096
 #: Clouds of at least this many points are hulled on their grid coreset (``coreset_min``).
 CORESET_MIN_POINTS = 65536
+#: Relative margin (of the box's extent) by which a point may stick out of the box of a
+#: coreset's hull before it joins the hull (:func:`_add_leaks`).
+LEAK_TOLERANCE = 1e-3
+#: Most rounds of :func:`_add_leaks`.
+LEAK_ROUNDS = 3
+#: First tilt of the final walk of the box's axis (radians), halved ``walk_steps`` times.
+WALK_STEP = 0.02
 
 
 # Linear algebra -----------------------------------------------------------------------------
@@ -200,6 +212,8 @@ def fit_kernel(
     coreset_cells: int,
     coreset_min: int,
     hull_tolerance: float,
+    walk_steps: int,
+    walk_step: float,
 ) -> tuple:
     """
     Fit the minimum-volume oriented box of finite points (see the module notes).
@@ -306,6 +320,9 @@ def fit_kernel(
     # The two widest PCA axes, for the planar frame.
     middle_axis = 3 - widest - narrowest if widest != narrowest else (widest + 1) % 3
     frames = np.zeros((2, 3, 3))
+    # The box of every point in a frame, where a leak check already measured it.
+    known = np.zeros(2, dtype=np.bool_)
+    known_bounds = np.zeros((2, 2, 3))
     used = 0
     if rank == 2:
         copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
@@ -358,6 +375,8 @@ def fit_kernel(
                 starts,
                 max_rounds,
                 grid_size,
+                walk_steps,
+                walk_step,
             )
             copy_frame(frame, frames[used])
             used += 1
@@ -370,7 +389,7 @@ def fit_kernel(
             for i in range(hull_ids.shape[0]):
                 for k in range(3):
                     vertices[i, k] = searched[hull_ids[i], k]
-            _, frame = search_kernel(
+            volume, frame = search_kernel(
                 vertices,
                 normals,
                 areas,
@@ -384,10 +403,153 @@ def fit_kernel(
                 starts,
                 max_rounds,
                 grid_size,
+                walk_steps,
+                walk_step,
             )
+            if searched.shape[0] < count:
+                frame, bounds, exact = _add_leaks(
+                    local,
+                    vertices,
+                    frame,
+                    volume,
+                    hull_tolerance,
+                    max_rounds,
+                    walk_steps,
+                    walk_step,
+                )
+                if exact:
+                    known[used] = True
+                    for k in range(3):
+                        known_bounds[used, 0, k] = bounds[0, k]
+                        known_bounds[used, 1, k] = bounds[1, k]
             copy_frame(frame, frames[used])
             used += 1
-    return _final_box(local, origin, scale, pca, frames[:used], low, high, local_low, local_high)
+    return _final_box(
+        local,
+        origin,
+        scale,
+        pca,
+        frames[:used],
+        known,
+        known_bounds,
+        low,
+        high,
+        local_low,
+        local_high,
+    )
+
+
+@nb.njit
+def _leaks(local: np.ndarray, vertices: np.ndarray, frame: np.ndarray) -> tuple:
+    """
+    Return the points that stick out of the box of `vertices` in `frame` by more than a margin.
+
+    The margin is :data:`LEAK_TOLERANCE` of the box's extent along each axis. One pass over
+    the points, which also gives their box in the frame.
+
+    :return: the indices of the points sticking out, and the box of every point in the frame
+        (2, 3): lower corner, upper corner.
+    """
+    low = np.empty(3)
+    high = np.empty(3)
+    for k in range(3):
+        low[k] = np.inf
+        high[k] = -np.inf
+        for i in range(vertices.shape[0]):
+            h = frame[0, k] * vertices[i, 0] + frame[1, k] * vertices[i, 1]
+            h += frame[2, k] * vertices[i, 2]
+            low[k] = min(low[k], h)
+            high[k] = max(high[k], h)
+        margin = LEAK_TOLERANCE * (high[k] - low[k])
+        low[k] -= margin
+        high[k] += margin
+    f00, f01, f02 = frame[0, 0], frame[0, 1], frame[0, 2]
+    f10, f11, f12 = frame[1, 0], frame[1, 1], frame[1, 2]
+    f20, f21, f22 = frame[2, 0], frame[2, 1], frame[2, 2]
+    out = np.empty(local.shape[0], dtype=np.int64)
+    size = 0
+    l0 = l1 = l2 = np.inf
+    h0 = h1 = h2 = -np.inf
+    for i in range(local.shape[0]):
+        x = local[i, 0]
+        y = local[i, 1]
+        z = local[i, 2]
+        v0 = x * f00 + y * f10 + z * f20
+        v1 = x * f01 + y * f11 + z * f21
+        v2 = x * f02 + y * f12 + z * f22
+        l0, h0 = min(l0, v0), max(h0, v0)
+        l1, h1 = min(l1, v1), max(h1, v1)
+        l2, h2 = min(l2, v2), max(h2, v2)
+        if v0 < low[0] or v0 > high[0] or v1 < low[1] or v1 > high[1]:
+            out[size] = i
+            size += 1
+        elif v2 < low[2] or v2 > high[2]:
+            out[size] = i
+            size += 1
+    bounds = np.empty((2, 3))
+    bounds[0, 0], bounds[0, 1], bounds[0, 2] = l0, l1, l2
+    bounds[1, 0], bounds[1, 1], bounds[1, 2] = h0, h1, h2
+    return out[:size], bounds
+
+
+@nb.njit
+def _add_leaks(
+    local: np.ndarray,
+    vertices: np.ndarray,
+    frame: np.ndarray,
+    volume: float,
+    hull_tolerance: float,
+    max_rounds: int,
+    walk_steps: int,
+    walk_step: float,
+) -> tuple:
+    """
+    Re-check a frame searched on a coreset's hull against every point, and re-settle it.
+
+    The points outside the coreset hull's box in the frame (by more than
+    :data:`LEAK_TOLERANCE`) join the hull's vertices, which are hulled again, and the frame is
+    walked and polished on the new hull (:func:`mvbb_ros.geometry.boxfit.search.settle`); up to
+    :data:`LEAK_ROUNDS` times, until no point leaks. The coreset keeps each column's extremes
+    along three axes only: in a tilted frame, points between the columns' extremes can stick
+    out (a percent of volume on dense range scans with 14 x 14 columns).
+
+    :return: the frame (3, 3), the box of every point in it (2, 3) and whether that box is
+        known (the last check found no leak; otherwise the box is zeros).
+    """
+    for _ in range(LEAK_ROUNDS):
+        leaked, bounds = _leaks(local, vertices, frame)
+        if leaked.shape[0] == 0:
+            return frame, bounds, True
+        merged = np.empty((vertices.shape[0] + leaked.shape[0], 3))
+        for i in range(vertices.shape[0]):
+            for k in range(3):
+                merged[i, k] = vertices[i, k]
+        for j in range(leaked.shape[0]):
+            for k in range(3):
+                merged[vertices.shape[0] + j, k] = local[leaked[j], k]
+        status, hull_ids, _, normals, _, edges, edge_facets = hull_module.quickhull_kernel(
+            merged, hull_tolerance
+        )
+        if status != hull_module.FULL_RANK:
+            break
+        vertices = np.empty((hull_ids.shape[0], 3))
+        for i in range(hull_ids.shape[0]):
+            for k in range(3):
+                vertices[i, k] = merged[hull_ids[i], k]
+        volume = frame_volume(vertices, frame)
+        volume, frame = settle(
+            vertices,
+            normals,
+            edges,
+            edge_facets,
+            new_work(vertices.shape[0], normals.shape[0]),
+            frame,
+            volume,
+            max_rounds,
+            walk_steps,
+            walk_step,
+        )
+    return frame, np.zeros((2, 3)), False
 
 
 @nb.njit
@@ -397,6 +559,8 @@ def _final_box(
     scale: float,
     pca: np.ndarray,
     frames: np.ndarray,
+    known: np.ndarray,
+    known_bounds: np.ndarray,
     low: np.ndarray,
     high: np.ndarray,
     local_low: np.ndarray,
@@ -407,6 +571,8 @@ def _final_box(
 
     :param local: (N, 3) the points in the PCA frame, centred on `origin`, divided by `scale`.
     :param frames: (K, 3, 3) searched frames in those coordinates.
+    :param known: (>= K,) whether the box of every point in frame j is already measured,
+        ``known_bounds[j]`` (lower corner, upper corner): that frame's pass is skipped.
     :param low: (3,) the points' lower corner (world), ``high`` the upper one.
     :param local_low: (3,) lower corner in the PCA frame, ``local_high`` the upper one.
     :return: centre, rotation and extents, in world units.
@@ -415,6 +581,11 @@ def _final_box(
     box_low = np.full((count, 3), np.inf)
     box_high = np.full((count, 3), -np.inf)
     for j in range(count):  # one frame at a time, its bounds in scalars (registers)
+        if known[j]:
+            for k in range(3):
+                box_low[j, k] = known_bounds[j, 0, k]
+                box_high[j, k] = known_bounds[j, 1, k]
+            continue
         f00, f01, f02 = frames[j, 0, 0], frames[j, 0, 1], frames[j, 0, 2]
         f10, f11, f12 = frames[j, 1, 0], frames[j, 1, 1], frames[j, 1, 2]
         f20, f21, f22 = frames[j, 2, 0], frames[j, 2, 1], frames[j, 2, 2]
@@ -521,6 +692,7 @@ def fit_box(
     pair_edges: int = 12,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
+    walk_steps: int = 5,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return the minimum-volume oriented box enclosing `points` as plain arrays.
@@ -547,7 +719,12 @@ def fit_box(
     :param pair_edges: longest hull edges whose pairs give candidate axes.
     :param coreset_cells: columns per side of the grid coreset for large clouds (0: never).
     :param coreset_min: clouds of at least this many points are hulled on their grid coreset;
-        smaller ones on all points (the coreset costs up to 1 % of volume on the bunny scans).
+        smaller ones on all points. A coreset's frame is re-checked against every point: points
+        sticking out of its box by more than :data:`LEAK_TOLERANCE` join the hull and the
+        frame is walked again.
+    :param walk_steps: halvings of the final walk of the box's axis on the sphere (first tilt
+        :data:`WALK_STEP` radians, eight directions; 0 turns it off): it finds the minimal boxes
+        flush with two hull edges that lie between the candidate axes and the grid's.
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -563,6 +740,7 @@ def fit_box(
         pair_edges=pair_edges,
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
+        walk_steps=walk_steps,
     )
     return _run(_as_points(points), knobs)
 
@@ -580,6 +758,7 @@ class _Knobs(NamedTuple):
     pair_edges: int
     coreset_cells: int
     coreset_min: int
+    walk_steps: int
 
 
 def _knobs(
@@ -594,6 +773,7 @@ def _knobs(
     pair_edges: int,
     coreset_cells: int,
     coreset_min: int,
+    walk_steps: int,
 ) -> _Knobs:
     """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
     return _Knobs(
@@ -607,6 +787,7 @@ def _knobs(
         _check_knob('pair_edges', pair_edges, 0),
         _check_knob('coreset_cells', coreset_cells, 0),
         _check_knob('coreset_min', coreset_min, 0),
+        _check_knob('walk_steps', walk_steps, 0),
     )
 
 
@@ -625,24 +806,25 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
         knobs.coreset_cells,
         knobs.coreset_min,
         hull_module.HULL_TOLERANCE,
+        knobs.walk_steps,
+        WALK_STEP,
     )
 
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: half the candidate axes and starts, no grid rounds,
-#: and parts of 1,000 points or more hulled on a 14 x 14 grid coreset (the hull was the largest
-#: share of a part fit). Measured with ``benchmarks/decompose.py --parts`` against the default
-#: search on the 3,218 part fits of the shared scans and models at t = 0.90/0.94/0.98: volume
-#: median 1.0000 x, mean 1.0006 x, 99th percentile 1.009 x, worst 1.044 x (16 x 16 cells: 1.0006,
-#: 1.010, 1.044; 12 x 12: 1.0008, 1.011, 1.044 but Homer's count at t = 0.98 goes from 8 to 14).
-#: Timings: ``docs/performance.md``.
+#: The knobs of a decomposition's part fits: the default candidate axes and starts, no grid
+#: rounds, a shorter walk, and parts of 2,000 points or more hulled on a 20 x 20 grid coreset
+#: (re-checked against every point, :func:`_add_leaks`). On 3,000 varied clouds
+#: (``benchmarks/boxfit_quality.py``) the volume is within 1 % of an exhaustive reference but
+#: for two clouds of 158 points (1.016, 1.014 x); quality and cost: ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
-    'candidates': 16,
-    'starts': 4,
+    'candidates': 32,
+    'starts': 8,
     'grid_size': 0,
-    'coreset_cells': 14,
-    'coreset_min': 1000,
+    'coreset_cells': 20,
+    'coreset_min': 2000,
+    'walk_steps': 4,
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
@@ -680,6 +862,7 @@ def minimum_bounding_box(
     pair_edges: int = 12,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
+    walk_steps: int = 5,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -703,6 +886,7 @@ def minimum_bounding_box(
     :param pair_edges: see :func:`fit_box`.
     :param coreset_cells: see :func:`fit_box`.
     :param coreset_min: see :func:`fit_box`.
+    :param walk_steps: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -718,6 +902,7 @@ def minimum_bounding_box(
         pair_edges=pair_edges,
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
+        walk_steps=walk_steps,
     )
     # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
     return Box.trusted(center, rotation, extents)

@@ -21,14 +21,18 @@ hull.
 * Local improvement (:func:`polish`): the best ``starts`` candidates are turned, in turn, to their
   best rotation about one of their other axes, keeping the better half every round (successive
   halving); then Barequet and Har-Peled's grid of directions around the best frame is searched,
-  and the polish resumes from any better box it finds (:func:`search_kernel`).
+  and the polish resumes from any better box it finds (:func:`search_kernel`). Last, the best
+  frame's axis walks on the sphere in small tilts while its best box shrinks, and is polished
+  again (:func:`walk`, :func:`settle`): the polish's turns and the grid's directions are 90 and
+  45 degrees apart, and a minimal box with two faces flush with hull edges lies between them.
 
 Cost, for a hull of H vertices, F ~ 2H facets and E ~ 3H edges: candidate ranking O(K (H + F))
 for K = F + 66 candidate axes (fewer with the binned shadow of large hulls and the 200-vertex
 width sample); then about 40 candidates, two per frame and polish round (8, 4, 2, 1 frames) and
-13 per grid round: 60 to 120 axes, O(F + E + S) each for a silhouette of S vertices (about
-sqrt(H) on smooth shapes). The volume bounds rule out about two fifths of the candidates and
-some grid directions before they are turned (on the parts of the shared scans).
+13 per grid round, and 8 per step of the walk (more where it moves): 100 to 200 axes,
+O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes). The volume
+bounds rule out about two fifths of the candidates and some grid directions before they are
+turned (on the parts of the shared scans).
 """
 
 from __future__ import annotations
@@ -55,6 +59,11 @@ EXACT_SHADOW_FACETS = 96
 #: Relative slack of the volume bounds when they rule out a candidate axis: far above their
 #: rounding (and the hull tolerance's effect on the shadow area, about 1e-11), far below a gain.
 BOUND_SLACK = 1e-6
+#: Tilt directions of :func:`walk` around the axis.
+WALK_DIRECTIONS = 8
+#: The tilt directions of :func:`walk` (cosine and sine of multiples of 45 degrees).
+_WALK_COS = np.cos(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
+_WALK_SIN = np.sin(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
 #: Candidate axes within about 1 degree (1 - |cos|) of one already taken are skipped.
 _PARALLEL = 1.5e-4
 
@@ -631,6 +640,60 @@ def polish(
     return volumes[best], frame
 
 
+@nb.njit
+def walk(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    edges: np.ndarray,
+    edge_facets: np.ndarray,
+    work: tuple,
+    frame: np.ndarray,
+    volume: float,
+    first_step: float,
+    steps: int,
+) -> tuple:
+    """
+    Tilt a box's first axis in small steps while its best rotation about the axis shrinks.
+
+    A pattern search on the sphere of axes: the axis is tilted by `first_step` radians towards
+    each of eight directions across it (its box's other axes and their diagonals), moving to the
+    first tilt whose best box is smaller; with none, the step is halved, `steps` times in all.
+    The polish's turns are 90 degree jumps and the grid's 13 directions 45 degrees apart: a
+    minimal box with two faces flush with hull edges (not a facet) lies between them.
+
+    :return: the volume and frame (3, 3) found.
+    """
+    trial = np.empty((3, 3))
+    best_frame = frame.copy()
+    step = first_step
+    halvings = 0
+    last = 0  # the direction of the last move, tried first (a walk tends to keep its heading)
+    while halvings < steps:
+        moved = False
+        ax, ay, az = best_frame[0, 0], best_frame[1, 0], best_frame[2, 0]
+        for turn in range(WALK_DIRECTIONS):
+            d = (last + turn) % WALK_DIRECTIONS
+            c = _WALK_COS[d] * step
+            s = _WALK_SIN[d] * step
+            x = ax + c * best_frame[0, 1] + s * best_frame[0, 2]
+            y = ay + c * best_frame[1, 1] + s * best_frame[1, 2]
+            z = az + c * best_frame[2, 1] + s * best_frame[2, 2]
+            norm = math.sqrt(x * x + y * y + z * z)
+            found = rotate_about(
+                vertices, normals, edges, edge_facets, work, x / norm, y / norm, z / norm, trial
+            )
+            if found < volume * (1.0 - POLISH_TOLERANCE):
+                volume = found
+                copy_frame(trial, best_frame)
+                moved = True
+                last = d
+                break
+        if not moved:
+            step *= 0.5
+            halvings += 1
+    return volume, best_frame
+
+
 @nb.njit(cache=True, nogil=True)
 def search_kernel(
     vertices: np.ndarray,
@@ -646,6 +709,8 @@ def search_kernel(
     starts: int,
     max_rounds: int,
     grid_size: int,
+    walk_steps: int,
+    walk_step: float,
 ) -> tuple:
     """
     Search the frame of the minimum-volume box of a full-dimensional hull.
@@ -726,7 +791,44 @@ def search_kernel(
         volume, frame = polish(
             vertices, normals, edges, edge_facets, work, trial.copy(), found_volume, max_rounds
         )
-    return volume, frame
+    return settle(
+        vertices,
+        normals,
+        edges,
+        edge_facets,
+        work,
+        frame,
+        volume,
+        max_rounds,
+        walk_steps,
+        walk_step,
+    )
+
+
+@nb.njit
+def settle(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    edges: np.ndarray,
+    edge_facets: np.ndarray,
+    work: tuple,
+    frame: np.ndarray,
+    volume: float,
+    max_rounds: int,
+    walk_steps: int,
+    walk_step: float,
+) -> tuple:
+    """Walk a frame's axis (:func:`walk`), then polish the result; return volume and frame."""
+    if walk_steps <= 0:
+        return volume, frame
+    volume, frame = walk(
+        vertices, normals, edges, edge_facets, work, frame, volume, walk_step, walk_steps
+    )
+    frames = np.empty((1, 3, 3))
+    copy_frame(frame, frames[0])
+    return polish(
+        vertices, normals, edges, edge_facets, work, frames, np.array([volume]), max_rounds
+    )
 
 
 def warm_up() -> None:
@@ -750,4 +852,6 @@ def warm_up() -> None:
         4,
         3,
         1,
+        4,
+        0.02,
     )

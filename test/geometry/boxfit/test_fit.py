@@ -498,7 +498,7 @@ def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded,
     assert np.all(bounds * (1.0 - search.BOUND_SLACK) <= volumes)
 
 
-def _plain_search(vertices, found, knobs, starts, rounds, grid_size):
+def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps):
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
     arrays = (vertices, found.normals, found.edges, found.edge_facets)
     work = search.new_work(len(vertices), len(found.normals))
@@ -520,7 +520,7 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size):
         if not best < volume * (1.0 - search.POLISH_TOLERANCE):
             break
         volume, frame = search.polish(*arrays, work, best_frame[None], np.array([best]), rounds)
-    return volume, frame
+    return search.settle(*arrays, work, frame, volume, rounds, walk_steps, fit.WALK_STEP)
 
 
 @settings(max_examples=200, deadline=None)
@@ -533,10 +533,11 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size):
     starts=st.integers(1, 6),
     rounds=st.integers(1, 3),
     grid_size=st.integers(0, 2),
+    walk_steps=st.integers(0, 3),
     rounded=st.booleans(),
 )
 def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
-    count, seed, candidates, pair_edges, exhaustive, starts, rounds, grid_size, rounded
+    count, seed, candidates, pair_edges, exhaustive, starts, rounds, grid_size, walk_steps, rounded
 ):
     # Axes and grid directions ruled out by their volume bounds change nothing.
     vertices, found = _random_hull(count, seed, rounded)
@@ -544,9 +545,9 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     knobs = (seed, candidates, pair_edges, 200, exhaustive)  # 200: the sample size
     volume, frame = search.search_kernel(
         vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs,
-        starts, rounds, grid_size,
+        starts, rounds, grid_size, walk_steps, fit.WALK_STEP,
     )  # fmt: skip
-    expected = _plain_search(vertices, found, knobs, starts, rounds, grid_size)
+    expected = _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
     expected_volume, expected_frame = expected
     assert volume == expected_volume
     np.testing.assert_array_equal(frame, expected_frame)

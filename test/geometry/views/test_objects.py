@@ -5,11 +5,18 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from mvbb_ros.geometry.views.objects import _cluster_labels, own_footprints, separate_objects
+from mvbb_ros.geometry.views.objects import (
+    _cluster_labels,
+    _members,
+    own_footprints,
+    separate_objects,
+)
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from support.data import scene_grid
 
 SPACING = 0.005
 
@@ -160,3 +167,45 @@ def test_own_footprints_needs_two_resting_pieces_with_disjoint_footprints():
     lifted = [box + [0.0, -0.03, 0.0], beside + [0.0, -0.03, 0.0]]
     assert not own_footprints(*lifted, TABLE, 25, CLEARANCE)
     assert own_footprints(*lifted, TABLE, 25, 0.03)
+
+
+@settings(max_examples=60, deadline=None)
+@given(labels=arrays(np.int64, st.integers(0, 300), elements=st.integers(0, 12)))
+def test_property_members_are_each_labels_sorted_indices(labels):
+    """One stable sort gives what one pass per label gave (empty labels left out)."""
+    expected = [np.flatnonzero(labels == label) for label in np.unique(labels)]
+    found = _members(labels) if len(labels) else []
+    assert len(found) == len(expected)
+    for mine, theirs in zip(found, expected, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+
+
+def test_objects_of_a_real_scene_are_unions_of_the_components_within_the_tolerance():
+    """
+    A shared scene, voxelised, cut at a tolerance that leaves hundreds of clusters.
+
+    Every point is in one group; each connected component of the pairs within the tolerance
+    (scipy's reference) lies in one group; groups come largest first.
+    """
+    grid = scene_grid('pcl_kinect_laptop_box_frame.pcd').reshape(-1, 3).astype(np.float64)
+    points = grid[np.isfinite(grid).all(axis=1)]
+    # A 5 mm voxel grid's first point per voxel, in cloud order (the voxel filter's spacing).
+    _, first = np.unique(np.floor(points / 0.005).astype(np.int64), axis=0, return_index=True)
+    points = points[np.sort(first)]
+    tolerance = 0.0075
+    pairs = cKDTree(points).query_pairs(tolerance, output_type='ndarray')
+    graph = coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points))
+    )
+    count, components = connected_components(graph, directed=False)
+    assert count > 100  # the case of many small clusters
+    groups = separate_objects(points, tolerance, spacing=0.005)
+    group_of = np.full(len(points), -1)
+    for number, group in enumerate(groups):
+        assert np.all(group_of[group] == -1)
+        group_of[group] = number
+    assert np.all(group_of >= 0)
+    assert len(set(zip(components.tolist(), group_of.tolist(), strict=True))) == count
+    assert len(groups) < count  # occluded pieces were joined
+    sizes = [len(group) for group in groups]
+    assert sizes == sorted(sizes, reverse=True)
