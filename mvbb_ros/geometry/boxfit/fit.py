@@ -813,18 +813,21 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: the default candidate axes and starts, no grid
-#: rounds, a shorter walk, and parts of 2,000 points or more hulled on a 20 x 20 grid coreset
-#: (re-checked against every point, :func:`_add_leaks`). On 3,000 varied clouds
-#: (``benchmarks/boxfit_quality.py``) the volume is within 1 % of an exhaustive reference but
-#: for two clouds of 158 points (1.016, 1.014 x); quality and cost: ``docs/performance.md``.
+#: The knobs of a decomposition's part fits: half the default candidate axes and starts, no grid
+#: rounds, no final walk, and parts of 1,000 points or more hulled on a 14 x 14 grid coreset
+#: (re-checked against every point, :func:`_add_leaks`). Lighter than the default search: a
+#: decomposition fits tens of parts a cloud. On 600 varied clouds (``benchmarks/boxfit_quality.py
+#: --count 600 --seed 7``) the part volume is median 1.0001 x, 99th percentile 1.016 x, worst
+#: 1.059 x an exhaustive reference; 32 axes, 8 starts, a 20 x 20 coreset from 2,000 points and a
+#: 4-step walk bring the worst of 3,000 clouds to 1.016 x at 1.4 x the decomposition's time and
+#: 1.6 x the Bunny's at t = 0.98 (over issue 17's 35 ms): ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
-    'candidates': 32,
-    'starts': 8,
+    'candidates': 16,
+    'starts': 4,
     'grid_size': 0,
-    'coreset_cells': 20,
-    'coreset_min': 2000,
-    'walk_steps': 4,
+    'coreset_cells': 14,
+    'coreset_min': 1000,
+    'walk_steps': 0,
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
