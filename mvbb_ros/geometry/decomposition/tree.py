@@ -405,13 +405,7 @@ def _best_split(
     if pool is not None and pool.parallel and fit_parts:
         return _best_split_parallel(points, draft, settings, others, pool)
     box = draft.box
-    local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
-    scores = splitting.score_cuts(
-        local,
-        cells=settings.grid_cells,
-        measure=settings.split_measure,
-        min_thickness=settings.min_thickness,
-    )
+    scores = _cut_scores(points, draft, settings)
     limit = max(1, settings.rescore_cuts) if fit_parts else 1
     candidates: list[tuple[splitting.Cut, tuple[IndexArray, IndexArray], int, Box]] = []
     for cut in splitting.candidate_cuts(scores, draft.box, limit=limit):
@@ -445,6 +439,20 @@ def _best_split(
     return best
 
 
+def _cut_scores(
+    points: NDArray[np.float64], draft: _Draft, settings: DecompositionSettings
+) -> splitting.CutScores:
+    """Return the split measure's scores of every cut of `draft`'s box (its own frame)."""
+    box = draft.box
+    local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
+    return splitting.score_cuts(
+        local,
+        cells=settings.grid_cells,
+        measure=settings.split_measure,
+        min_thickness=settings.min_thickness,
+    )
+
+
 def _best_split_parallel(
     points: NDArray[np.float64],
     draft: _Draft,
@@ -460,13 +468,7 @@ def _best_split_parallel(
     too, ahead of need; the fits the serial path would skip are cancelled when not yet started.
     """
     box = draft.box
-    local = splitting.frame_points_kernel(points, draft.point_indices, box.center, box.rotation)
-    scores = splitting.score_cuts(
-        local,
-        cells=settings.grid_cells,
-        measure=settings.split_measure,
-        min_thickness=settings.min_thickness,
-    )
+    scores = _cut_scores(points, draft, settings)
     limit = max(1, settings.rescore_cuts)
     cuts = []
     for cut in splitting.candidate_cuts(scores, draft.box, limit=limit):
