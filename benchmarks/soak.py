@@ -192,7 +192,9 @@ def stream(
         while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
             rclpy.spin_once(client, timeout_sec=0.1)
         if publisher.get_subscription_count() == 0:
-            raise RuntimeError(f'{command[-1]} did not come up within 60 s')
+            code = node.poll()
+            why = 'is not subscribed' if code is None else f'exited with code {code}'
+            raise RuntimeError(f'{" ".join(command)}: {why} after 60 s')
         memory.append((0.0, process.memory_info().rss))
         period = 1.0 / args.rate
         start = time.monotonic()
@@ -248,6 +250,17 @@ def report(name: str, figures: Figures) -> None:
     print(f'  exit code on SIGINT: {figures.exit_code}')
 
 
+def decomposer_command(executable: Path, parameters: list[str]) -> list[str]:
+    """Return the decomposer's command line with `parameters` (``NAME:=VALUE``) as ROS args."""
+    command = [str(executable)]
+    for item in parameters:
+        name, _, value = item.partition(':=')
+        if not name or not value or not _:
+            raise ValueError(f'a parameter is NAME:=VALUE, got {item!r}')
+        command += ['-p', item]
+    return command[:1] + ['--ros-args'] + command[1:] if parameters else command
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--minutes', type=float, default=1.0, help='duration (default 1)')
@@ -290,8 +303,21 @@ def main() -> int:
         help='a Fast DDS XML profile loaded by this process, which publishes the clouds, as a '
         'camera driver would (config/fastdds_large_clouds.xml); the nodes keep the defaults',
     )
+    parser.add_argument(
+        '-p',
+        '--param',
+        action='append',
+        default=[],
+        metavar='NAME:=VALUE',
+        help='a parameter of the decomposer, as `ros2 run ... --ros-args -p` takes it '
+        '(repeatable; e.g. frame_time_budget:=0.03)',
+    )
     parser.add_argument('--empty-node', action='store_true', help=argparse.SUPPRESS)
     args = parser.parse_args()
+    try:
+        decomposer = decomposer_command(Path(sys.executable).parent / 'decomposer', args.param)
+    except ValueError as error:
+        parser.error(str(error))
     if args.empty_node:
         return empty_node(args.reliability)
 
@@ -347,7 +373,9 @@ def main() -> int:
     )
     profile = os.environ.get(PROFILE_VARIABLE)
     print(f'publisher transport: {profile or "Fast DDS defaults"}', flush=True)
-    nodes = [('decomposer', [str(Path(sys.executable).parent / 'decomposer')])]
+    if args.param:
+        print(f'decomposer parameters: {" ".join(args.param)}', flush=True)
+    nodes = [('decomposer', decomposer)]
     if not args.no_peer:
         empty = [
             sys.executable,

@@ -45,3 +45,20 @@ def test_a_short_run_warms_up_for_its_first_third(soak):
     assert soak.warm_up_s(60.0) == pytest.approx(20.0)
     growing = [(0.0, 100.0 * MIB), (30.0, 100.0 * MIB), (60.0, 110.0 * MIB)]
     assert _figures(soak, growing).growth == pytest.approx(0.10)
+
+
+def test_the_decomposers_parameters_reach_its_command_line_as_ros_arguments(soak, tmp_path):
+    executable = tmp_path / 'decomposer'
+    assert soak.decomposer_command(executable, []) == [str(executable)]
+    command = soak.decomposer_command(executable, ['frame_time_budget:=0.03', 'workers:=1'])
+    assert command == [
+        str(executable),
+        '--ros-args',
+        '-p',
+        'frame_time_budget:=0.03',
+        '-p',
+        'workers:=1',
+    ]
+    for bad in ('workers=1', ':=1', 'workers:='):
+        with pytest.raises(ValueError, match='NAME:=VALUE'):
+            soak.decomposer_command(executable, [bad])
