@@ -75,7 +75,10 @@ class TrialSettings:
     :ivar friction: Coulomb friction of every contact (pads, object, table), one setting, the
         middle of the 0.5-1.0 range of rubber pads on household goods.
     :ivar torsional_friction: MuJoCo's torsional friction (metres), its default.
-    :ivar timestep: the engine's step.
+    :ivar timestep: the engine's step. MuJoCo's contacts are soft with a time constant of two
+        steps, relative to the bodies' masses: with 2 ms the full grip sank the pads 5-7 mm into
+        objects of a few grams, which then squirted out. A quarter millisecond keeps them under
+        half a millimetre (:attr:`TrialResult.penetration`; ``docs/proving_ground.md``).
     :ivar standoff: pre-grasp distance back along the approach.
     :ivar approach_speed: hand speed on the approach.
     :ivar closing_speed: speed of each finger while closing (set by the joints' damping).
@@ -105,7 +108,7 @@ class TrialSettings:
 
     friction: float = 0.75
     torsional_friction: float = 0.005
-    timestep: float = 0.002
+    timestep: float = 0.00025
     standoff: float = 0.10
     approach_speed: float = 0.2
     closing_speed: float = 0.1
@@ -171,6 +174,9 @@ class TrialResult:
     :ivar advance: where the fingers closed, along the approach from the given pose (metres:
         0 with ``approach='to_pose'``; negative when an ``'until_contact'`` hand stopped short of
         it; NaN when the trial stopped before the approach ended).
+    :ivar penetration: the deepest a pad sank into the object while it was lifted and shaken
+        (metres, sampled with the grip checks; 0 when the object was not lifted): how rigid the
+        engine kept the contact.
     """
 
     success: bool
@@ -181,6 +187,7 @@ class TrialResult:
     rise: float
     seconds: float
     advance: float = math.nan
+    penetration: float = 0.0
 
 
 def _position(start: int) -> slice:
@@ -301,6 +308,7 @@ class _Trial:
         self.step = 0
         self.gripped_step = -(10**9)
         self.watch_grip = False
+        self.penetration = 0.0
         # Views into the engine's arrays, made once: the bindings build a new view per access.
         self.mocap_pos = scene.data.mocap_pos[scene.mocap]
         self.mocap_quat = scene.data.mocap_quat[scene.mocap]
@@ -320,6 +328,19 @@ class _Trial:
         mask = self._touch_mask()
         return bool(np.any(((mask & _OBJECT) != 0) & ((mask & _HAND) != 0)))
 
+    def _pad_depth(self) -> float:
+        """Return how deep the deepest pad-object contact is (metres, 0 when none)."""
+        data = self.scene.data
+        count = data.ncon
+        if not count:
+            return 0.0
+        roles = self.roles[np.asarray(data.contact.geom[:count])]
+        mask = np.bitwise_or(roles[:, 0], roles[:, 1])
+        pads = ((mask & _OBJECT) != 0) & ((mask & (_LEFT | _RIGHT)) != 0)
+        if not pads.any():
+            return 0.0
+        return max(0.0, -float(np.asarray(data.contact.dist[:count])[pads].min()))
+
     def _pads_on_object(self) -> bool:
         mask = self._touch_mask()
         return bool(np.any(mask == _LEFT | _OBJECT) and np.any(mask == _RIGHT | _OBJECT))
@@ -330,8 +351,10 @@ class _Trial:
         self.mocap_quat[:] = quat
         mujoco.mj_step(self.scene.model, self.scene.data)
         self.step += 1
-        if self.watch_grip and self.step % 5 == 0 and self._pads_on_object():
-            self.gripped_step = self.step
+        if self.watch_grip and self.step % 5 == 0:
+            if self._pads_on_object():
+                self.gripped_step = self.step
+            self.penetration = max(self.penetration, self._pad_depth())
 
     def _hold(self, seconds: float, position: FloatArray, quat: FloatArray) -> None:
         for _ in range(int(round(seconds / self.settings.timestep))):
@@ -358,6 +381,7 @@ class _Trial:
         gap = hand.max_opening if width is None else float(np.clip(width, 0.0, hand.max_opening))
         mujoco.mj_resetData(model, data)
         self.step, self.gripped_step, self.watch_grip = 0, -(10**9), False
+        self.penetration = 0.0
         place_object(scene, object_pose)
         approach = grasp[:3, 2]
         quat = _quat(grasp[:3, :3])
@@ -391,6 +415,7 @@ class _Trial:
                 rise=float(now[2] - rest_position[2]),
                 seconds=time.perf_counter() - started,
                 advance=advance[0],
+                penetration=self.penetration,
             )
 
         if self._hand_on_table():

@@ -7,6 +7,7 @@ L-shaped block for the convex decomposition, and a few of pybullet_data's random
 
 from __future__ import annotations
 
+from dataclasses import replace
 import math
 
 import mujoco
@@ -77,6 +78,24 @@ def test_a_box_grasped_across_two_faces_lifts_from_above_and_from_the_side():
         assert result.gap == pytest.approx(0.06, abs=0.003)
         assert result.rise == pytest.approx(DEFAULT_SETTINGS.lift_height, abs=0.01)
         assert result.displacement < 0.002
+
+
+def test_a_light_object_in_the_full_grip_keeps_the_pads_out_and_is_lifted():
+    # 4 x 4 x 1.5 cm at the default density: 12 g under the hand's 70 N a finger.
+    light = _box((0.04, 0.04, 0.015), 'light')
+    assert light.mass < 0.015
+    grasp = _grasp([0, 0, -1], [1, 0, 0], [0.0, 0.0, 0.008])
+    result = try_grasp(light, _standing(light), grasp, FRANKA)
+    assert result.success, result
+    assert 0.0 < result.penetration < 0.0005, result
+    # A heavy box's pads sink no deeper: the contact's rigidity does not hang on the mass.
+    heavy = try_grasp(BOX, _standing(BOX), TOP_DOWN, FRANKA)
+    assert 0.0 < heavy.penetration < 0.0005, heavy
+    # The engine's step sets it: at 2 ms the same grip sinks the pads millimetres deep.
+    coarse = try_grasp(
+        light, _standing(light), grasp, FRANKA, replace(DEFAULT_SETTINGS, timestep=0.002)
+    )
+    assert coarse.penetration > 0.001, coarse
 
 
 def test_the_same_grasp_5_cm_beside_the_box_misses():
