@@ -45,6 +45,7 @@ class PhysicsOptions:
     torsional_friction: float
     timestep: float
     closing_speed: float
+    noslip_iterations: int = 0
 
 
 @dataclass
@@ -149,7 +150,7 @@ def scene_xml(obj: PhysicsObject, hand: Hand | None, options: PhysicsOptions) ->
         '<mujoco model="trial">\n'
         '<compiler autolimits="true" angle="radian"/>\n'
         f'<option timestep="{options.timestep:.9g}" integrator="implicitfast" cone="elliptic" '
-        'impratio="10"/>\n'
+        f'impratio="10" noslip_iterations="{options.noslip_iterations:d}"/>\n'
         f'<default><geom friction="{friction}" condim="4" solref="{stiff}"/>'
         f'<joint solreflimit="{stiff}"/></default>\n'
         f'<asset>\n{assets}</asset>\n'

@@ -79,6 +79,9 @@ class TrialSettings:
         steps, relative to the bodies' masses: with 2 ms the full grip sank the pads 5-7 mm into
         objects of a few grams, which then squirted out. A quarter millisecond keeps them under
         half a millimetre (:attr:`TrialResult.penetration`; ``docs/proving_ground.md``).
+    :ivar noslip_iterations: iterations of MuJoCo's no-slip pass, which removes the creep the
+        soft friction model lets a gripped object make although its friction holds it (a light
+        object turned out of a full grip without it); sliding beyond the friction stays.
     :ivar standoff: pre-grasp distance back along the approach.
     :ivar approach_speed: hand speed on the approach.
     :ivar closing_speed: speed of each finger while closing (set by the joints' damping).
@@ -109,6 +112,7 @@ class TrialSettings:
     friction: float = 0.75
     torsional_friction: float = 0.005
     timestep: float = 0.00025
+    noslip_iterations: int = 10
     standoff: float = 0.10
     approach_speed: float = 0.2
     closing_speed: float = 0.1
@@ -141,7 +145,11 @@ class TrialSettings:
             self.settle_seconds,
             self.rest_speed,
         )
-        if not all(value > 0.0 for value in positive) or not 0.0 <= self.friction <= 2.0:
+        if (
+            not all(value > 0.0 for value in positive)
+            or not 0.0 <= self.friction <= 2.0
+            or self.noslip_iterations < 0
+        ):
             raise ValueError(f'trial settings out of range: {self}')
         if self.approach not in APPROACHES or not self.contact_retreat >= 0.0:
             raise ValueError(
@@ -152,7 +160,11 @@ class TrialSettings:
     def options(self) -> PhysicsOptions:
         """Return the engine's part of the settings."""
         return PhysicsOptions(
-            self.friction, self.torsional_friction, self.timestep, self.closing_speed
+            self.friction,
+            self.torsional_friction,
+            self.timestep,
+            self.closing_speed,
+            self.noslip_iterations,
         )
 
 

@@ -98,6 +98,16 @@ def test_a_light_object_in_the_full_grip_keeps_the_pads_out_and_is_lifted():
     assert coarse.penetration > 0.001, coarse
 
 
+def test_the_no_slip_pass_keeps_a_held_box_still_and_lets_a_slippery_one_slide_out():
+    # The 180 g box in the full grip, friction 0.75: it rides with the hand, not creeping.
+    held = try_grasp(BOX, _standing(BOX), TOP_DOWN, FRANKA)
+    assert held.success and held.rise == pytest.approx(DEFAULT_SETTINGS.lift_height, abs=0.002)
+    # Friction 0.005: two pads carry at most 0.7 N of its 1.8 N weight; it slides out.
+    slippery = replace(DEFAULT_SETTINGS, friction=0.005)
+    result = try_grasp(BOX, _standing(BOX), TOP_DOWN, FRANKA, slippery)
+    assert result.stage == 'slipped' and result.rise < 0.02, result
+
+
 def test_the_same_grasp_5_cm_beside_the_box_misses():
     beside = TOP_DOWN.copy()
     beside[:3, 3] += 0.05 * TOP_DOWN[:3, 0]  # along the pads' width: they close on air
