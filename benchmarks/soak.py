@@ -252,13 +252,13 @@ def report(name: str, figures: Figures) -> None:
 
 def decomposer_command(executable: Path, parameters: list[str]) -> list[str]:
     """Return the decomposer's command line with `parameters` (``NAME:=VALUE``) as ROS args."""
-    command = [str(executable)]
     for item in parameters:
-        name, _, value = item.partition(':=')
-        if not name or not value or not _:
+        name, separator, value = item.partition(':=')
+        if not (name and separator and value):
             raise ValueError(f'a parameter is NAME:=VALUE, got {item!r}')
-        command += ['-p', item]
-    return command[:1] + ['--ros-args'] + command[1:] if parameters else command
+    if not parameters:
+        return [str(executable)]
+    return [str(executable), '--ros-args', *(part for item in parameters for part in ('-p', item))]
 
 
 def main() -> int:

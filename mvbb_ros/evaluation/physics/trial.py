@@ -342,16 +342,12 @@ class _Trial:
 
     def _pad_depth(self) -> float:
         """Return how deep the deepest pad-object contact is (metres, 0 when none)."""
-        data = self.scene.data
-        count = data.ncon
-        if not count:
-            return 0.0
-        roles = self.roles[np.asarray(data.contact.geom[:count])]
-        mask = np.bitwise_or(roles[:, 0], roles[:, 1])
+        mask = self._touch_mask()
         pads = ((mask & _OBJECT) != 0) & ((mask & (_LEFT | _RIGHT)) != 0)
         if not pads.any():
             return 0.0
-        return max(0.0, -float(np.asarray(data.contact.dist[:count])[pads].min()))
+        distances = np.asarray(self.scene.data.contact.dist[: len(mask)])
+        return max(0.0, -float(distances[pads].min()))
 
     def _pads_on_object(self) -> bool:
         mask = self._touch_mask()
