@@ -6,7 +6,8 @@ took longer than the budget the next frame runs one level lighter; after a frame
 than :data:`RECOVER_FRACTION` of it, one level less light. The levels degrade in a stated order,
 each keeping the ones before it (:func:`degraded`):
 
-1. coarser voxels: ``voxel_size`` doubled (from :data:`BASE_VOXEL_M` when the grid is off);
+1. coarser voxels: ``voxel_size`` doubled (from :data:`BASE_VOXEL_M` when the grid is off), and
+   no finer voxels for small objects (``object_voxel_cells`` 0);
 2. fewer objects: ``max_objects`` halved (from :data:`BASE_CAP` when every object is kept);
 3. fewer grasp candidates: ``max_boxes`` halved (from :data:`BASE_CAP` when unbounded): each
    leaf box gives at most six face candidates;
@@ -53,6 +54,9 @@ def degraded(settings: PipelineSettings, level: int) -> tuple[PipelineSettings, 
         new = (old if old > 0.0 else BASE_VOXEL_M) * 2 ** rounds[0]
         filtering = replace(filtering, voxel_size=new)
         changes.append(f'voxel_size {old:g} -> {new:g} m')
+        if view.object_voxel_cells:
+            changes.append(f'object_voxel_cells {view.object_voxel_cells} -> 0')
+            view = replace(view, object_voxel_cells=0)
     if rounds[1]:
         old_objects = view.max_objects
         new_objects = max(1, (old_objects or BASE_CAP) >> rounds[1])

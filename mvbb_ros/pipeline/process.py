@@ -27,6 +27,7 @@ from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
+from mvbb_ros.pipeline.density import finer_object_points
 from mvbb_ros.pipeline.filtering import (
     crop_points,
     filter_points,
@@ -63,6 +64,12 @@ class ObjectResult:
     :ivar decomposition: the fit-and-split tree of ``shape.points``.
     :ivar support_floor: the height along the up direction of the table the object rests on
         (from the support plane), or None when no plane was found under it.
+    :ivar spacing: the distance between the object's neighbouring observed points (metres), as
+        its completion and its grasps' surface used it.
+    :ivar voxel_size: the voxel edge of the object's observed points (metres): a small object's
+        own finer edge (``object_voxel_cells``, :mod:`mvbb_ros.pipeline.density`; its observed
+        points are then not among the filtered points that `point_indices` indexes), else the
+        frame's ``voxel_size``.
     """
 
     index: int
@@ -70,6 +77,8 @@ class ObjectResult:
     shape: CompletedView
     decomposition: Decomposition
     support_floor: float | None = None
+    spacing: float = 0.0
+    voxel_size: float = 0.0
 
     @property
     def leaf_observed_counts(self) -> list[int]:
@@ -370,6 +379,9 @@ def process_points(
     min_points = settings.decomposition.min_points
     view = settings.view
     scene = Scene(None, None, 'support_plane: none')
+    # What the voxel grid was made of (the cropped cloud, or what stands on the table): small
+    # objects take their points from it again, finer (:mod:`mvbb_ros.pipeline.density`).
+    raw: NDArray[np.floating] | None = None
     if settings.scene.support_plane != 'none' and filtering.voxel_size > 0.0:
         # The table first, on a sample of the points; then the filters on what stands on it
         # only, not on the whole room. Without a table the cloud is filtered as without the
@@ -392,6 +404,7 @@ def process_points(
         scoped = array
         if bounds is None:  # not cropped by the decoder
             scoped = crop_points(array, filtering.crop_min, filtering.crop_max)
+        raw = scoped
         sample = scene_sample(scoped, filtering.voxel_size)
         if len(sample) >= min_points:
             scene = find_scene(
@@ -421,6 +434,7 @@ def process_points(
             standing_points = scoped[standing_mask(scoped, scene.support, settings.scene)]
             uncropped = replace(filtering, crop_min=(), crop_max=())
             filtered, counts = filter_points(standing_points, pool=pool, **asdict(uncropped))
+            raw = standing_points
             whole = len(array) if finite is None else finite
             counts = replace(counts, finite=int(whole), cropped=len(scoped))
         timings['filter'] = (time.perf_counter() - start) * 1e3
@@ -444,6 +458,12 @@ def process_points(
         timings['scene'] = (time.perf_counter() - start) * 1e3
     if near is not None:
         counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
+    if raw is None and filtering.voxel_size > 0.0 and view.object_voxel_cells > 0:
+        raw = (
+            array
+            if bounds is not None
+            else crop_points(array, filtering.crop_min, filtering.crop_max)
+        )
     support = scene.support
     if support is not None and len(filtered) < min_points:
         warning = (
@@ -517,13 +537,28 @@ def process_points(
         start = time.perf_counter()
         members = groups[index]
         observed = standing[members]
+        object_spacing, object_voxel = spacing, filtering.voxel_size
+        finer = None
+        if raw is not None:
+            finer = finer_object_points(
+                observed,
+                raw,
+                filtering.voxel_size,
+                view.object_voxel_cells,
+                view.min_voxel_size,
+                filtering.outlier_neighbors,
+                filtering.outlier_std_ratio,
+            )
+        if finer is not None:
+            observed, object_voxel = finer.points, finer.voxel_size
+            object_spacing = point_spacing(observed, object_voxel)
         floor = None if support is None or up is None else resting_floor(observed, support, up)
         shape = complete_view(
             observed,
             method=view.completion,
             viewpoint=view.viewpoint,
             up=up,
-            spacing=spacing,
+            spacing=object_spacing,
             floor=floor,
             pool=pool,
         )
@@ -531,11 +566,13 @@ def process_points(
         surface = None
         if pool is not None and refining and shape.method != 'none':
             # The refinement's surface needs the shape only: made while the shape decomposes.
-            surface = pool.submit(lambda: shape_surface(shape, floor, spacing, up))
+            surface = pool.submit(lambda: shape_surface(shape, floor, object_spacing, up))
         start = time.perf_counter()
         decomposition = decompose(shape.points, pool=pool, **asdict(settings.decomposition))
         decompose_ms = (time.perf_counter() - start) * 1e3
-        item = ObjectResult(index, members, shape, decomposition, floor)
+        item = ObjectResult(
+            index, members, shape, decomposition, floor, object_spacing, object_voxel
+        )
         return item, surface, completion_ms, decompose_ms
 
     if pool is None:
@@ -569,7 +606,7 @@ def process_points(
     if refining:
         start = time.perf_counter()
         models = [
-            object_surface(item, spacing, up) if surface is None else surface.result()
+            object_surface(item, item.spacing, up) if surface is None else surface.result()
             for item, surface in zip(objects, surfaces, strict=True)
         ]
         result.refinement = refine_grasps(

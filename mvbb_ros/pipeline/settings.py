@@ -113,6 +113,10 @@ class ViewSettings:
     :ivar max_objects: the largest objects of a frame that are decomposed and grasped; the
         others are left out and the result says so (0: all). With ``max_boxes`` it bounds the
         boxes, and so the grasps, of a whole frame.
+    :ivar object_voxel_cells: with the voxel grid on, an object smaller than this many voxels
+        across takes its points again from the cloud at its largest extent over this many
+        (:mod:`mvbb_ros.pipeline.density`); 0: every object keeps the frame's voxel grid.
+    :ivar min_voxel_size: the finest voxel edge an object gets (metres).
     """
 
     viewpoint: tuple[float, ...] = (0.0, 0.0, 0.0)
@@ -120,6 +124,8 @@ class ViewSettings:
     cluster_tolerance: float = 0.0
     completion: Completion = 'none'
     max_objects: int = 0
+    object_voxel_cells: int = 0
+    min_voxel_size: float = 0.002
 
 
 @dataclass(frozen=True)
@@ -302,6 +308,22 @@ SPECS: tuple[SettingSpec, ...] = (
         (0.0, 10.0),
         node_default=0.005,
         smallest_on=1e-4,
+    ),
+    SettingSpec(
+        'object_voxel_cells',
+        ViewSettings,
+        int,
+        'An object less than this many voxels across is sampled again from the cloud, '
+        'finer: its largest extent over this many (at least min_voxel_size); 0 turns it off.',
+        (0, 10_000),
+        node_default=20,
+    ),
+    SettingSpec(
+        'min_voxel_size',
+        ViewSettings,
+        float,
+        'The finest voxel edge (metres) object_voxel_cells gives a small object.',
+        (1e-4, 10.0),
     ),
     SettingSpec(
         'outlier_neighbors',

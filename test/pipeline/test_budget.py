@@ -30,7 +30,9 @@ def test_the_levels_degrade_in_the_stated_order():
         lighter, changes = degraded(node, level)
         got = (lighter.filtering.voxel_size, lighter.view.max_objects)
         assert got + (lighter.decomposition.max_boxes,) == (voxel, objects, boxes), level
-        assert len(changes) == min(level, 3)
+        # The first level also stops sampling small objects finer (object_voxel_cells 0).
+        assert len(changes) == min(level, 3) + 1
+        assert lighter.view.object_voxel_cells == 0
         assert lighter.grasps == node.grasps and lighter.refinement == node.refinement
     with pytest.raises(ValueError, match='level'):
         degraded(node, MAX_LEVEL + 1)
