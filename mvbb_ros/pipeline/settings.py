@@ -600,7 +600,7 @@ SPECS: tuple[SettingSpec, ...] = (
         'far above the support, metres: the table when the scene stage found it, else the '
         "object's observed base (its lowest 1 % of points).",
         (0.0, 0.1),
-        node_default=0.0,
+        node_default=0.002,
     ),
     SettingSpec(
         'grasp_width_margin',
