@@ -86,7 +86,7 @@ LEAK_TOLERANCE = 1e-3
 #: Most rounds of :func:`_add_leaks`.
 LEAK_ROUNDS = 3
 #: First tilt of the final walk of the box's axis (radians), halved ``walk_steps`` times.
-WALK_STEP = 0.02
+WALK_STEP = 0.04
 
 
 # Linear algebra -----------------------------------------------------------------------------
@@ -214,6 +214,7 @@ def fit_kernel(
     hull_tolerance: float,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
     """
     Fit the minimum-volume oriented box of finite points (see the module notes).
@@ -377,6 +378,7 @@ def fit_kernel(
                 grid_size,
                 walk_steps,
                 walk_step,
+                walk_axes,
             )
             copy_frame(frame, frames[used])
             used += 1
@@ -405,6 +407,7 @@ def fit_kernel(
                 grid_size,
                 walk_steps,
                 walk_step,
+                walk_axes,
             )
             if searched.shape[0] < count:
                 frame, bounds, exact = _add_leaks(
@@ -416,6 +419,7 @@ def fit_kernel(
                     max_rounds,
                     walk_steps,
                     walk_step,
+                    walk_axes,
                 )
                 if exact:
                     known[used] = True
@@ -502,6 +506,7 @@ def _add_leaks(
     max_rounds: int,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
     """
     Re-check a frame searched on a coreset's hull against every point, and re-settle it.
@@ -548,6 +553,7 @@ def _add_leaks(
             max_rounds,
             walk_steps,
             walk_step,
+            walk_axes,
         )
     return frame, np.zeros((2, 3)), False
 
@@ -684,15 +690,16 @@ def fit_box(
     *,
     seed: int = 0,
     sample_size: int = 200,
-    grid_size: int = 1,
-    candidates: int = 32,
+    grid_size: int = 0,
+    candidates: int = 24,
     starts: int = 8,
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
-    walk_steps: int = 5,
+    walk_steps: int = 6,
+    walk_axes: int = 2,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return the minimum-volume oriented box enclosing `points` as plain arrays.
@@ -725,6 +732,8 @@ def fit_box(
     :param walk_steps: halvings of the final walk of the box's axis on the sphere (first tilt
         :data:`WALK_STEP` radians, eight directions; 0 turns it off): it finds the minimal boxes
         flush with two hull edges that lie between the candidate axes and the grid's.
+    :param walk_axes: the box's axes walked in turn (1 to 3; more escape more local minima
+        where no tilt of the first axis helps, at the cost of another walk each).
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -741,6 +750,7 @@ def fit_box(
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
         walk_steps=walk_steps,
+        walk_axes=walk_axes,
     )
     return _run(_as_points(points), knobs)
 
@@ -759,6 +769,7 @@ class _Knobs(NamedTuple):
     coreset_cells: int
     coreset_min: int
     walk_steps: int
+    walk_axes: int
 
 
 def _knobs(
@@ -774,6 +785,7 @@ def _knobs(
     coreset_cells: int,
     coreset_min: int,
     walk_steps: int,
+    walk_axes: int,
 ) -> _Knobs:
     """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
     return _Knobs(
@@ -788,6 +800,7 @@ def _knobs(
         _check_knob('coreset_cells', coreset_cells, 0),
         _check_knob('coreset_min', coreset_min, 0),
         _check_knob('walk_steps', walk_steps, 0),
+        _check_knob('walk_axes', walk_axes, 1),
     )
 
 
@@ -808,26 +821,27 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
         hull_module.HULL_TOLERANCE,
         knobs.walk_steps,
         WALK_STEP,
+        knobs.walk_axes,
     )
 
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: half the default candidate axes and starts, no grid
-#: rounds, no final walk, and parts of 1,000 points or more hulled on a 14 x 14 grid coreset
-#: (re-checked against every point, :func:`_add_leaks`). Lighter than the default search: a
-#: decomposition fits tens of parts a cloud. On 600 varied clouds (``benchmarks/boxfit_quality.py
-#: --count 600 --seed 7``) the part volume is median 1.0001 x, 99th percentile 1.016 x, worst
-#: 1.059 x an exhaustive reference; 32 axes, 8 starts, a 20 x 20 coreset from 2,000 points and a
-#: 4-step walk bring the worst of 3,000 clouds to 1.016 x at 1.4 x the decomposition's time and
-#: 1.6 x the Bunny's at t = 0.98 (over issue 17's 35 ms): ``docs/performance.md``.
+#: The knobs of a decomposition's part fits: half the default starts, fewer candidate axes and
+#: edge pairs, a short walk of the first axis only, and parts of 1,000 points or more hulled on
+#: a 12 x 12 grid coreset (re-checked against every point, :func:`_add_leaks`). Lighter than the
+#: default search: a decomposition fits tens of parts a cloud. The volume over an exhaustive
+#: reference on varied clouds (``benchmarks/boxfit_quality.py``) and the cost are in
+#: ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
     'candidates': 16,
     'starts': 4,
     'grid_size': 0,
-    'coreset_cells': 14,
+    'pair_edges': 6,
+    'coreset_cells': 12,
     'coreset_min': 1000,
-    'walk_steps': 0,
+    'walk_steps': 2,
+    'walk_axes': 1,
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
@@ -857,15 +871,16 @@ def minimum_bounding_box(
     *,
     seed: int = 0,
     sample_size: int = 200,
-    grid_size: int = 1,
-    candidates: int = 32,
+    grid_size: int = 0,
+    candidates: int = 24,
     starts: int = 8,
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
-    walk_steps: int = 5,
+    walk_steps: int = 6,
+    walk_axes: int = 2,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -890,6 +905,7 @@ def minimum_bounding_box(
     :param coreset_cells: see :func:`fit_box`.
     :param coreset_min: see :func:`fit_box`.
     :param walk_steps: see :func:`fit_box`.
+    :param walk_axes: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -906,6 +922,7 @@ def minimum_bounding_box(
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
         walk_steps=walk_steps,
+        walk_axes=walk_axes,
     )
     # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
     return Box.trusted(center, rotation, extents)

@@ -711,6 +711,7 @@ def search_kernel(
     grid_size: int,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
     """
     Search the frame of the minimum-volume box of a full-dimensional hull.
@@ -802,6 +803,7 @@ def search_kernel(
         max_rounds,
         walk_steps,
         walk_step,
+        walk_axes,
     )
 
 
@@ -817,13 +819,28 @@ def settle(
     max_rounds: int,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
-    """Walk a frame's axis (:func:`walk`), then polish the result; return volume and frame."""
+    """
+    Walk each of a frame's first `walk_axes` axes in turn (:func:`walk`), then polish the result.
+
+    A box stuck where no tilt of its first axis helps can still shrink when another of its axes
+    tilts (the best rotation about that axis is found exactly, the others follow); each walk
+    starts from the frame the previous one found. :return: volume and frame.
+    """
     if walk_steps <= 0:
         return volume, frame
-    volume, frame = walk(
-        vertices, normals, edges, edge_facets, work, frame, volume, walk_step, walk_steps
-    )
+    for pivot in range(walk_axes):
+        if pivot > 0:
+            # The next axis first (a cyclic turn of the columns keeps the frame right-handed).
+            rolled = np.empty((3, 3))
+            for i in range(3):
+                for k in range(3):
+                    rolled[i, k] = frame[i, (k + 1) % 3]
+            frame = rolled
+        volume, frame = walk(
+            vertices, normals, edges, edge_facets, work, frame, volume, walk_step, walk_steps
+        )
     frames = np.empty((1, 3, 3))
     copy_frame(frame, frames[0])
     return polish(
@@ -854,4 +871,5 @@ def warm_up() -> None:
         1,
         4,
         0.02,
+        3,
     )

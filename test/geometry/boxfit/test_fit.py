@@ -520,7 +520,9 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
         if not best < volume * (1.0 - search.POLISH_TOLERANCE):
             break
         volume, frame = search.polish(*arrays, work, best_frame[None], np.array([best]), rounds)
-    return search.settle(*arrays, work, frame, volume, rounds, walk_steps, fit.WALK_STEP)
+    return search.settle(
+        *arrays, work, frame, volume, rounds, walk_steps, fit.WALK_STEP, 2
+    )
 
 
 @settings(max_examples=200, deadline=None)
