@@ -419,7 +419,6 @@ def fit_kernel(
                     max_rounds,
                     walk_steps,
                     walk_step,
-                    walk_axes,
                 )
                 if exact:
                     known[used] = True
@@ -506,7 +505,6 @@ def _add_leaks(
     max_rounds: int,
     walk_steps: int,
     walk_step: float,
-    walk_axes: int,
 ) -> tuple:
     """
     Re-check a frame searched on a coreset's hull against every point, and re-settle it.
@@ -542,6 +540,8 @@ def _add_leaks(
             for k in range(3):
                 vertices[i, k] = merged[hull_ids[i], k]
         volume = frame_volume(vertices, frame)
+        # The frame is already the search's best: a leak moves it a little, the first axis's
+        # walk follows (the later axes' walks, for other basins, were done on the coreset).
         volume, frame = settle(
             vertices,
             normals,
@@ -553,7 +553,7 @@ def _add_leaks(
             max_rounds,
             walk_steps,
             walk_step,
-            walk_axes,
+            1,
         )
     return frame, np.zeros((2, 3)), False
 

@@ -61,6 +61,9 @@ EXACT_SHADOW_FACETS = 96
 BOUND_SLACK = 1e-6
 #: Tilt directions of :func:`walk` around the axis.
 WALK_DIRECTIONS = 8
+#: Halvings fewer in the walks of a box's later axes (:func:`settle`): they look for another
+#: basin, the first axis's walk converges finely.
+LATER_WALK_SHORTER = 3
 #: The tilt directions of :func:`walk` (cosine and sine of multiples of 45 degrees).
 _WALK_COS = np.cos(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
 _WALK_SIN = np.sin(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
@@ -826,7 +829,8 @@ def settle(
 
     A box stuck where no tilt of its first axis helps can still shrink when another of its axes
     tilts (the best rotation about that axis is found exactly, the others follow); each walk
-    starts from the frame the previous one found. :return: volume and frame.
+    starts from the frame the previous one found, the later ones :data:`LATER_WALK_SHORTER`
+    halvings shorter. :return: volume and frame.
     """
     if walk_steps <= 0:
         return volume, frame
@@ -838,8 +842,9 @@ def settle(
                 for k in range(3):
                     rolled[i, k] = frame[i, (k + 1) % 3]
             frame = rolled
+        steps = walk_steps if pivot == 0 else max(1, walk_steps - LATER_WALK_SHORTER)
         volume, frame = walk(
-            vertices, normals, edges, edge_facets, work, frame, volume, walk_step, walk_steps
+            vertices, normals, edges, edge_facets, work, frame, volume, walk_step, steps
         )
     frames = np.empty((1, 3, 3))
     copy_frame(frame, frames[0])
