@@ -827,15 +827,16 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: half the default starts, fewer candidate axes and
-#: edge pairs, a short walk of the first axis only, and parts of 1,000 points or more hulled on
-#: a 12 x 12 grid coreset (re-checked against every point, :func:`_add_leaks`). Lighter than the
-#: default search: a decomposition fits tens of parts a cloud. The volume over an exhaustive
+#: The knobs of a decomposition's part fits: three quarters of the default starts, fewer
+#: candidate axes and edge pairs, a short walk of the first axis only, and parts of 1,000 points
+#: or more hulled on a 12 x 12 grid coreset (re-checked against every point,
+#: :func:`_add_leaks`). Lighter than the default search: a decomposition fits tens of parts a
+#: cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`. The volume over an exhaustive
 #: reference on varied clouds (``benchmarks/boxfit_quality.py``) and the cost are in
 #: ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
     'candidates': 16,
-    'starts': 4,
+    'starts': 6,
     'grid_size': 0,
     'pair_edges': 6,
     'coreset_cells': 12,
@@ -844,6 +845,11 @@ PART_SEARCH: dict[str, int] = {
     'walk_axes': 1,
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
+#: The knobs of parts of fewer than ``PART_SEARCH['coreset_min']`` points, hulled on every
+#: point: their hulls are small, so their search is cheap and can afford the default's starts
+#: and a longer walk of two axes (their minimal boxes are more often flush with edges only).
+SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 3, 'walk_axes': 2}
+_SMALL_PART_KNOBS = _DEFAULT_KNOBS._replace(**SMALL_PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
 #: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
 #: the 11 shared clouds of 16,384 points or more the root volume is median 1.0002 x, at most 1.0068
@@ -855,15 +861,16 @@ def fit_part(points: FloatArray, *, seed: int = 0) -> Box:
     """
     Return the minimum-volume box of a decomposition's part: :data:`PART_SEARCH`, no checks.
 
-    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` and without its checks
-    and conversions, for points known to be valid (the parts the decomposition cuts).
+    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` (:data:`SMALL_PART_SEARCH`
+    below its ``coreset_min`` points) and without its checks and conversions, for points known
+    to be valid (the parts the decomposition cuts).
 
     :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
     :param seed: an integer >= 0 (not checked).
     :return: the box.
     """
-    knobs = _PART_KNOBS._replace(seed=seed & (2**63 - 1))
-    return Box.trusted(*_run(points, knobs))
+    knobs = _SMALL_PART_KNOBS if points.shape[0] < _PART_KNOBS.coreset_min else _PART_KNOBS
+    return Box.trusted(*_run(points, knobs._replace(seed=seed & (2**63 - 1))))
 
 
 def minimum_bounding_box(

@@ -59,6 +59,8 @@ EXACT_SHADOW_FACETS = 96
 #: Relative slack of the volume bounds when they rule out a candidate axis: far above their
 #: rounding (and the hull tolerance's effect on the shadow area, about 1e-11), far below a gain.
 BOUND_SLACK = 1e-6
+#: Facets ranked by their volume bound, per candidate axis: the largest by area.
+SHORTLIST = 8
 #: Tilt directions of :func:`walk` around the axis.
 WALK_DIRECTIONS = 8
 #: Halvings fewer in the walks of a box's later axes (:func:`settle`): they look for another
@@ -514,12 +516,24 @@ def candidate_axes_kernel(
     pca_bounds = _volume_bounds(out[:3], vertices, sample, shadow)
     for k in range(3):
         out_bounds[k] = pca_bounds[k]
-    bounds = _volume_bounds(normals, vertices, sample, shadow)
     if normals.shape[0] <= exhaustive:
+        bounds = _volume_bounds(normals, vertices, sample, shadow)
         order = np.arange(normals.shape[0]).astype(np.float64)  # every normal, in order
+        size = _take_distinct(normals, order, bounds, facet_count, out, out_bounds, size)
     else:
-        order = bounds
-    size = _take_distinct(normals, order, bounds, facet_count, out, out_bounds, size)
+        # Only the largest facets are ranked: a box's face lies on a large facet far more often
+        # than on a sliver, and the bounds are most of the ranking's cost.
+        shortlist = normals
+        listed = SHORTLIST * candidates
+        if normals.shape[0] > listed:
+            largest = np.argsort(-areas, kind='mergesort')[:listed]
+            largest.sort()  # hull order again: ties in the ranking as without the shortlist
+            shortlist = np.empty((listed, 3))
+            for i in range(listed):
+                for k in range(3):
+                    shortlist[i, k] = normals[largest[i], k]
+        bounds = _volume_bounds(shortlist, vertices, sample, shadow)
+        size = _take_distinct(shortlist, bounds, bounds, facet_count, out, out_bounds, size)
     if pairs.shape[0] > 0 and candidates // 2 > 0:
         bounds = _volume_bounds(pairs, vertices, sample, shadow)
         size = _take_distinct(pairs, bounds, bounds, candidates // 2, out, out_bounds, size)
