@@ -8,12 +8,14 @@ scheme on the convex hull (the box of a point set is the box of its hull), with 
 the orientation search (:mod:`mvbb_ros.geometry.boxfit.search`) turns candidate boxes to their best
 rotation about one axis (the minimum-area rectangle of the hull's silhouette, by rotating
 calipers, :mod:`mvbb_ros.geometry.boxfit.rectangle`), on candidate axes from hull facets and edge
-pairs (O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
-Har-Peled's grid of directions around the result. The final box is the smallest of the searched
-frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
-worse than either, and always enclosing. The best frame is finally walked on the sphere of axes
-in small tilts (:func:`mvbb_ros.geometry.boxfit.search.walk`): a minimal box whose faces are
-flush with hull edges rather than a facet lies between the candidate axes.
+pairs (O'Rourke 1985), polishes the best by alternating such turns and (with ``grid_size`` > 0,
+off by default) searches Barequet and Har-Peled's grid of directions around the result. The
+best frame is then walked on the sphere of axes in small tilts, first its first axis, then its
+second (:func:`mvbb_ros.geometry.boxfit.search.settle`): a minimal box whose faces are flush
+with hull edges rather than a facet lies between the candidate axes, and a box stuck where no
+tilt of one axis helps can shrink when another tilts. The final box is the smallest of the
+searched frame's box, the PCA box and the axis-aligned box, each grown around every input
+point: never worse than either, and always enclosing.
 
 What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
 (all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
@@ -699,7 +701,7 @@ def fit_box(
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
     walk_steps: int = 6,
-    walk_axes: int = 2,
+    walk_axes: int = 3,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return the minimum-volume oriented box enclosing `points` as plain arrays.
@@ -733,7 +735,7 @@ def fit_box(
         :data:`WALK_STEP` radians, eight directions; 0 turns it off): it finds the minimal boxes
         flush with two hull edges that lie between the candidate axes and the grid's.
     :param walk_axes: the box's axes walked in turn (1 to 3; more escape more local minima
-        where no tilt of the first axis helps, at the cost of another walk each).
+        where no tilt of the first axis helps, at the cost of another, shorter walk each).
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -847,8 +849,8 @@ PART_SEARCH: dict[str, int] = {
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 #: The knobs of parts of fewer than ``PART_SEARCH['coreset_min']`` points, hulled on every
 #: point: their hulls are small, so their search is cheap and can afford the default's starts
-#: and a longer walk of two axes (their minimal boxes are more often flush with edges only).
-SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 3, 'walk_axes': 2}
+#: and a longer walk of every axis (the part search's misses were mostly such parts).
+SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 4, 'walk_axes': 3}
 _SMALL_PART_KNOBS = _DEFAULT_KNOBS._replace(**SMALL_PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
 #: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
@@ -887,7 +889,7 @@ def minimum_bounding_box(
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
     walk_steps: int = 6,
-    walk_axes: int = 2,
+    walk_axes: int = 3,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).

@@ -20,16 +20,18 @@ hull.
   start the polish and is not turned.
 * Local improvement (:func:`polish`): the best ``starts`` candidates are turned, in turn, to their
   best rotation about one of their other axes, keeping the better half every round (successive
-  halving); then Barequet and Har-Peled's grid of directions around the best frame is searched,
-  and the polish resumes from any better box it finds (:func:`search_kernel`). Last, the best
-  frame's axis walks on the sphere in small tilts while its best box shrinks, and is polished
-  again (:func:`walk`, :func:`settle`): the polish's turns and the grid's directions are 90 and
-  45 degrees apart, and a minimal box with two faces flush with hull edges lies between them.
+  halving); then (``grid_size`` > 0) Barequet and Har-Peled's grid of directions around the best
+  frame is searched, and the polish resumes from any better box it finds (:func:`search_kernel`).
+  Last, the best frame's first axis, then its next ones (``walk_axes``), walk on the sphere in
+  small tilts while the best box shrinks, and the result is polished again (:func:`walk`,
+  :func:`settle`): the polish's turns and the grid's directions are 90 and 45 degrees apart, and
+  a minimal box with two faces flush with hull edges lies between them.
 
 Cost, for a hull of H vertices, F ~ 2H facets and E ~ 3H edges: candidate ranking O(K (H + F))
-for K = F + 66 candidate axes (fewer with the binned shadow of large hulls and the 200-vertex
-width sample); then about 40 candidates, two per frame and polish round (8, 4, 2, 1 frames) and
-13 per grid round, and 8 per step of the walk (more where it moves): 100 to 200 axes,
+for K = min(F, :data:`SHORTLIST` x candidates) + 66 candidate axes (fewer with the binned shadow
+of large hulls and the 200-vertex width sample); then about 40 candidates, two per frame and
+polish round (8, 4, 2, 1 frames) and 13 per grid round, and 8 per step of the walks (more where
+they move): 100 to 200 axes,
 O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes). The volume
 bounds rule out about two fifths of the candidates and some grid directions before they are
 turned (on the parts of the shared scans).
