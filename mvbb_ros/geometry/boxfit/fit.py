@@ -8,12 +8,14 @@ scheme on the convex hull (the box of a point set is the box of its hull), with 
 the orientation search (:mod:`mvbb_ros.geometry.boxfit.search`) turns candidate boxes to their best
 rotation about one axis (the minimum-area rectangle of the hull's silhouette, by rotating
 calipers, :mod:`mvbb_ros.geometry.boxfit.rectangle`), on candidate axes from hull facets and edge
-pairs (O'Rourke 1985), polishes the best by alternating such turns and searches Barequet and
-Har-Peled's grid of directions around the result. The final box is the smallest of the searched
-frame's box, the PCA box and the axis-aligned box, each grown around every input point: never
-worse than either, and always enclosing. The best frame is finally walked on the sphere of axes
-in small tilts (:func:`mvbb_ros.geometry.boxfit.search.walk`): a minimal box whose faces are
-flush with hull edges rather than a facet lies between the candidate axes.
+pairs (O'Rourke 1985), polishes the best by alternating such turns and (with ``grid_size`` > 0,
+off by default) searches Barequet and Har-Peled's grid of directions around the result. The
+best frame is then walked on the sphere of axes in small tilts, first its first axis, then its
+second (:func:`mvbb_ros.geometry.boxfit.search.settle`): a minimal box whose faces are flush
+with hull edges rather than a facet lies between the candidate axes, and a box stuck where no
+tilt of one axis helps can shrink when another tilts. The final box is the smallest of the
+searched frame's box, the PCA box and the axis-aligned box, each grown around every input
+point: never worse than either, and always enclosing.
 
 What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
 (all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
@@ -86,7 +88,7 @@ LEAK_TOLERANCE = 1e-3
 #: Most rounds of :func:`_add_leaks`.
 LEAK_ROUNDS = 3
 #: First tilt of the final walk of the box's axis (radians), halved ``walk_steps`` times.
-WALK_STEP = 0.02
+WALK_STEP = 0.04
 
 
 # Linear algebra -----------------------------------------------------------------------------
@@ -214,6 +216,7 @@ def fit_kernel(
     hull_tolerance: float,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
     """
     Fit the minimum-volume oriented box of finite points (see the module notes).
@@ -377,6 +380,7 @@ def fit_kernel(
                 grid_size,
                 walk_steps,
                 walk_step,
+                walk_axes,
             )
             copy_frame(frame, frames[used])
             used += 1
@@ -405,6 +409,7 @@ def fit_kernel(
                 grid_size,
                 walk_steps,
                 walk_step,
+                walk_axes,
             )
             if searched.shape[0] < count:
                 frame, bounds, exact = _add_leaks(
@@ -537,6 +542,8 @@ def _add_leaks(
             for k in range(3):
                 vertices[i, k] = merged[hull_ids[i], k]
         volume = frame_volume(vertices, frame)
+        # The frame is already the search's best: a leak moves it a little, the first axis's
+        # walk follows (the later axes' walks, for other basins, were done on the coreset).
         volume, frame = settle(
             vertices,
             normals,
@@ -548,6 +555,7 @@ def _add_leaks(
             max_rounds,
             walk_steps,
             walk_step,
+            1,
         )
     return frame, np.zeros((2, 3)), False
 
@@ -684,15 +692,16 @@ def fit_box(
     *,
     seed: int = 0,
     sample_size: int = 200,
-    grid_size: int = 1,
-    candidates: int = 32,
+    grid_size: int = 0,
+    candidates: int = 24,
     starts: int = 8,
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
-    walk_steps: int = 5,
+    walk_steps: int = 6,
+    walk_axes: int = 3,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return the minimum-volume oriented box enclosing `points` as plain arrays.
@@ -725,6 +734,8 @@ def fit_box(
     :param walk_steps: halvings of the final walk of the box's axis on the sphere (first tilt
         :data:`WALK_STEP` radians, eight directions; 0 turns it off): it finds the minimal boxes
         flush with two hull edges that lie between the candidate axes and the grid's.
+    :param walk_axes: the box's axes walked in turn (1 to 3; more escape more local minima
+        where no tilt of the first axis helps, at the cost of another, shorter walk each).
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -741,6 +752,7 @@ def fit_box(
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
         walk_steps=walk_steps,
+        walk_axes=walk_axes,
     )
     return _run(_as_points(points), knobs)
 
@@ -759,6 +771,7 @@ class _Knobs(NamedTuple):
     coreset_cells: int
     coreset_min: int
     walk_steps: int
+    walk_axes: int
 
 
 def _knobs(
@@ -774,6 +787,7 @@ def _knobs(
     coreset_cells: int,
     coreset_min: int,
     walk_steps: int,
+    walk_axes: int,
 ) -> _Knobs:
     """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
     return _Knobs(
@@ -788,6 +802,7 @@ def _knobs(
         _check_knob('coreset_cells', coreset_cells, 0),
         _check_knob('coreset_min', coreset_min, 0),
         _check_knob('walk_steps', walk_steps, 0),
+        _check_knob('walk_axes', walk_axes, 1),
     )
 
 
@@ -808,28 +823,35 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
         hull_module.HULL_TOLERANCE,
         knobs.walk_steps,
         WALK_STEP,
+        knobs.walk_axes,
     )
 
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: half the default candidate axes and starts, no grid
-#: rounds, no final walk, and parts of 1,000 points or more hulled on a 14 x 14 grid coreset
-#: (re-checked against every point, :func:`_add_leaks`). Lighter than the default search: a
-#: decomposition fits tens of parts a cloud. On 600 varied clouds (``benchmarks/boxfit_quality.py
-#: --count 600 --seed 7``) the part volume is median 1.0001 x, 99th percentile 1.016 x, worst
-#: 1.059 x an exhaustive reference; 32 axes, 8 starts, a 20 x 20 coreset from 2,000 points and a
-#: 4-step walk bring the worst of 3,000 clouds to 1.016 x at 1.4 x the decomposition's time and
-#: 1.6 x the Bunny's at t = 0.98 (over issue 17's 35 ms): ``docs/performance.md``.
+#: The knobs of a decomposition's part fits: three quarters of the default starts, fewer
+#: candidate axes and edge pairs, a short walk of the first axis only, and parts of 1,000 points
+#: or more hulled on a 12 x 12 grid coreset (re-checked against every point,
+#: :func:`_add_leaks`). Lighter than the default search: a decomposition fits tens of parts a
+#: cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`. The volume over an exhaustive
+#: reference on varied clouds (``benchmarks/boxfit_quality.py``) and the cost are in
+#: ``docs/performance.md``.
 PART_SEARCH: dict[str, int] = {
     'candidates': 16,
-    'starts': 4,
+    'starts': 6,
     'grid_size': 0,
-    'coreset_cells': 14,
+    'pair_edges': 6,
+    'coreset_cells': 12,
     'coreset_min': 1000,
-    'walk_steps': 0,
+    'walk_steps': 2,
+    'walk_axes': 1,
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
+#: The knobs of parts of fewer than ``PART_SEARCH['coreset_min']`` points, hulled on every
+#: point: their hulls are small, so their search is cheap and can afford the default's starts
+#: and a longer walk of every axis (the part search's misses were mostly such parts).
+SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 4, 'walk_axes': 3}
+_SMALL_PART_KNOBS = _DEFAULT_KNOBS._replace(**SMALL_PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
 #: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
 #: the 11 shared clouds of 16,384 points or more the root volume is median 1.0002 x, at most 1.0068
@@ -841,15 +863,16 @@ def fit_part(points: FloatArray, *, seed: int = 0) -> Box:
     """
     Return the minimum-volume box of a decomposition's part: :data:`PART_SEARCH`, no checks.
 
-    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` and without its checks
-    and conversions, for points known to be valid (the parts the decomposition cuts).
+    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` (:data:`SMALL_PART_SEARCH`
+    below its ``coreset_min`` points) and without its checks and conversions, for points known
+    to be valid (the parts the decomposition cuts).
 
     :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
     :param seed: an integer >= 0 (not checked).
     :return: the box.
     """
-    knobs = _PART_KNOBS._replace(seed=seed & (2**63 - 1))
-    return Box.trusted(*_run(points, knobs))
+    knobs = _SMALL_PART_KNOBS if points.shape[0] < _PART_KNOBS.coreset_min else _PART_KNOBS
+    return Box.trusted(*_run(points, knobs._replace(seed=seed & (2**63 - 1))))
 
 
 def minimum_bounding_box(
@@ -857,15 +880,16 @@ def minimum_bounding_box(
     *,
     seed: int = 0,
     sample_size: int = 200,
-    grid_size: int = 1,
-    candidates: int = 32,
+    grid_size: int = 0,
+    candidates: int = 24,
     starts: int = 8,
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
-    walk_steps: int = 5,
+    walk_steps: int = 6,
+    walk_axes: int = 3,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -890,6 +914,7 @@ def minimum_bounding_box(
     :param coreset_cells: see :func:`fit_box`.
     :param coreset_min: see :func:`fit_box`.
     :param walk_steps: see :func:`fit_box`.
+    :param walk_axes: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -906,6 +931,7 @@ def minimum_bounding_box(
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
         walk_steps=walk_steps,
+        walk_axes=walk_axes,
     )
     # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
     return Box.trusted(center, rotation, extents)

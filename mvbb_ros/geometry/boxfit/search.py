@@ -20,16 +20,18 @@ hull.
   start the polish and is not turned.
 * Local improvement (:func:`polish`): the best ``starts`` candidates are turned, in turn, to their
   best rotation about one of their other axes, keeping the better half every round (successive
-  halving); then Barequet and Har-Peled's grid of directions around the best frame is searched,
-  and the polish resumes from any better box it finds (:func:`search_kernel`). Last, the best
-  frame's axis walks on the sphere in small tilts while its best box shrinks, and is polished
-  again (:func:`walk`, :func:`settle`): the polish's turns and the grid's directions are 90 and
-  45 degrees apart, and a minimal box with two faces flush with hull edges lies between them.
+  halving); then (``grid_size`` > 0) Barequet and Har-Peled's grid of directions around the best
+  frame is searched, and the polish resumes from any better box it finds (:func:`search_kernel`).
+  Last, the best frame's first axis, then its next ones (``walk_axes``), walk on the sphere in
+  small tilts while the best box shrinks, and the result is polished again (:func:`walk`,
+  :func:`settle`): the polish's turns and the grid's directions are 90 and 45 degrees apart, and
+  a minimal box with two faces flush with hull edges lies between them.
 
 Cost, for a hull of H vertices, F ~ 2H facets and E ~ 3H edges: candidate ranking O(K (H + F))
-for K = F + 66 candidate axes (fewer with the binned shadow of large hulls and the 200-vertex
-width sample); then about 40 candidates, two per frame and polish round (8, 4, 2, 1 frames) and
-13 per grid round, and 8 per step of the walk (more where it moves): 100 to 200 axes,
+for K = min(F, :data:`SHORTLIST` x candidates) + 66 candidate axes (fewer with the binned shadow
+of large hulls and the 200-vertex width sample); then about 40 candidates, two per frame and
+polish round (8, 4, 2, 1 frames) and 13 per grid round, and 8 per step of the walks (more where
+they move): 100 to 200 axes,
 O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes). The volume
 bounds rule out about two fifths of the candidates and some grid directions before they are
 turned (on the parts of the shared scans).
@@ -59,8 +61,13 @@ EXACT_SHADOW_FACETS = 96
 #: Relative slack of the volume bounds when they rule out a candidate axis: far above their
 #: rounding (and the hull tolerance's effect on the shadow area, about 1e-11), far below a gain.
 BOUND_SLACK = 1e-6
+#: Facets ranked by their volume bound, per candidate axis: the largest by area.
+SHORTLIST = 8
 #: Tilt directions of :func:`walk` around the axis.
 WALK_DIRECTIONS = 8
+#: Halvings fewer in the walks of a box's later axes (:func:`settle`): they look for another
+#: basin, the first axis's walk converges finely.
+LATER_WALK_SHORTER = 3
 #: The tilt directions of :func:`walk` (cosine and sine of multiples of 45 degrees).
 _WALK_COS = np.cos(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
 _WALK_SIN = np.sin(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
@@ -511,12 +518,24 @@ def candidate_axes_kernel(
     pca_bounds = _volume_bounds(out[:3], vertices, sample, shadow)
     for k in range(3):
         out_bounds[k] = pca_bounds[k]
-    bounds = _volume_bounds(normals, vertices, sample, shadow)
     if normals.shape[0] <= exhaustive:
+        bounds = _volume_bounds(normals, vertices, sample, shadow)
         order = np.arange(normals.shape[0]).astype(np.float64)  # every normal, in order
+        size = _take_distinct(normals, order, bounds, facet_count, out, out_bounds, size)
     else:
-        order = bounds
-    size = _take_distinct(normals, order, bounds, facet_count, out, out_bounds, size)
+        # Only the largest facets are ranked: a box's face lies on a large facet far more often
+        # than on a sliver, and the bounds are most of the ranking's cost.
+        shortlist = normals
+        listed = SHORTLIST * candidates
+        if normals.shape[0] > listed:
+            largest = np.argsort(-areas, kind='mergesort')[:listed]
+            largest.sort()  # hull order again: ties in the ranking as without the shortlist
+            shortlist = np.empty((listed, 3))
+            for i in range(listed):
+                for k in range(3):
+                    shortlist[i, k] = normals[largest[i], k]
+        bounds = _volume_bounds(shortlist, vertices, sample, shadow)
+        size = _take_distinct(shortlist, bounds, bounds, facet_count, out, out_bounds, size)
     if pairs.shape[0] > 0 and candidates // 2 > 0:
         bounds = _volume_bounds(pairs, vertices, sample, shadow)
         size = _take_distinct(pairs, bounds, bounds, candidates // 2, out, out_bounds, size)
@@ -711,6 +730,7 @@ def search_kernel(
     grid_size: int,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
     """
     Search the frame of the minimum-volume box of a full-dimensional hull.
@@ -802,6 +822,7 @@ def search_kernel(
         max_rounds,
         walk_steps,
         walk_step,
+        walk_axes,
     )
 
 
@@ -817,13 +838,30 @@ def settle(
     max_rounds: int,
     walk_steps: int,
     walk_step: float,
+    walk_axes: int,
 ) -> tuple:
-    """Walk a frame's axis (:func:`walk`), then polish the result; return volume and frame."""
+    """
+    Walk each of a frame's first `walk_axes` axes in turn (:func:`walk`), then polish the result.
+
+    A box stuck where no tilt of its first axis helps can still shrink when another of its axes
+    tilts (the best rotation about that axis is found exactly, the others follow); each walk
+    starts from the frame the previous one found, the later ones :data:`LATER_WALK_SHORTER`
+    halvings shorter. :return: volume and frame.
+    """
     if walk_steps <= 0:
         return volume, frame
-    volume, frame = walk(
-        vertices, normals, edges, edge_facets, work, frame, volume, walk_step, walk_steps
-    )
+    for pivot in range(walk_axes):
+        if pivot > 0:
+            # The next axis first (a cyclic turn of the columns keeps the frame right-handed).
+            rolled = np.empty((3, 3))
+            for i in range(3):
+                for k in range(3):
+                    rolled[i, k] = frame[i, (k + 1) % 3]
+            frame = rolled
+        steps = walk_steps if pivot == 0 else max(1, walk_steps - LATER_WALK_SHORTER)
+        volume, frame = walk(
+            vertices, normals, edges, edge_facets, work, frame, volume, walk_step, steps
+        )
     frames = np.empty((1, 3, 3))
     copy_frame(frame, frames[0])
     return polish(
@@ -854,4 +892,5 @@ def warm_up() -> None:
         1,
         4,
         0.02,
+        3,
     )

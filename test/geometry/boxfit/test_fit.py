@@ -14,7 +14,13 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit import fit, hull, search
-from mvbb_ros.geometry.boxfit.fit import fit_box, fit_part, minimum_bounding_box, PART_SEARCH
+from mvbb_ros.geometry.boxfit.fit import (
+    fit_box,
+    fit_part,
+    minimum_bounding_box,
+    PART_SEARCH,
+    SMALL_PART_SEARCH,
+)
 from mvbb_ros.geometry.boxfit.rectangle import min_area_rectangle
 import numpy as np
 import pytest
@@ -142,13 +148,17 @@ def test_the_box_is_read_only_and_the_plain_arrays_agree():
 
 
 def test_a_part_fit_is_the_fit_with_the_part_search():
-    """fit_part skips the checks only: the same box as minimum_bounding_box with PART_SEARCH."""
-    points = np.ascontiguousarray(_cuboid_cloud(2))
-    part = fit_part(points, seed=3)
-    for mine, plain in zip(_fields(part), fit_box(points, seed=3, **PART_SEARCH), strict=True):
-        np.testing.assert_array_equal(mine, plain)
-    assert not part.extents.flags.writeable
-    _assert_valid(part, points)
+    """fit_part skips the checks only: fit_box's box with PART_SEARCH (or SMALL_PART_SEARCH)."""
+    many = np.tile(_cuboid_cloud(2), (3, 1))
+    size = PART_SEARCH['coreset_min']
+    for points, search in ((many[:size], PART_SEARCH), (many[: size - 1], SMALL_PART_SEARCH)):
+        points = np.ascontiguousarray(points)
+        part = fit_part(points, seed=3)
+        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **search), strict=True):
+            np.testing.assert_array_equal(mine, plain)
+        assert not part.extents.flags.writeable
+        _assert_valid(part, points)
+    assert SMALL_PART_SEARCH != PART_SEARCH
 
 
 # Degenerate and extreme clouds --------------------------------------------------------------
@@ -437,8 +447,11 @@ def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
     if facets <= exhaustive:
         expected = _distinct_by_bound(found.normals, np.arange(facets), facets, np.eye(3))
     else:
-        bounds = search._volume_bounds(found.normals, vertices, sample, shadow)
-        expected = _distinct_by_bound(found.normals, bounds, candidates, np.eye(3))
+        # The shortlist: the SHORTLIST x candidates largest facets (stable on ties), hull order.
+        listed = np.sort(np.argsort(-found.areas, kind='stable')[: search.SHORTLIST * candidates])
+        normals = np.ascontiguousarray(found.normals[listed])
+        bounds = search._volume_bounds(normals, vertices, sample, shadow)
+        expected = _distinct_by_bound(normals, bounds, candidates, np.eye(3))
     pairs = search._edge_pair_axes(vertices, found.edges, pair_edges)
     if len(pairs) and candidates // 2:
         bounds = search._volume_bounds(pairs, vertices, sample, shadow)
@@ -520,7 +533,7 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
         if not best < volume * (1.0 - search.POLISH_TOLERANCE):
             break
         volume, frame = search.polish(*arrays, work, best_frame[None], np.array([best]), rounds)
-    return search.settle(*arrays, work, frame, volume, rounds, walk_steps, fit.WALK_STEP)
+    return search.settle(*arrays, work, frame, volume, rounds, walk_steps, fit.WALK_STEP, 2)
 
 
 @settings(max_examples=200, deadline=None)
@@ -545,7 +558,7 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     knobs = (seed, candidates, pair_edges, 200, exhaustive)  # 200: the sample size
     volume, frame = search.search_kernel(
         vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs,
-        starts, rounds, grid_size, walk_steps, fit.WALK_STEP,
+        starts, rounds, grid_size, walk_steps, fit.WALK_STEP, 2,
     )  # fmt: skip
     expected = _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
     expected_volume, expected_frame = expected

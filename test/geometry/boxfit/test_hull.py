@@ -129,10 +129,18 @@ def _brute_force_columns(points, cells):
     """Return, per axis, the columns of `points` (lists of indices), as the kernel defines them."""
     low = points.min(axis=0)
     span = points.max(axis=0) - low
-    # The offset over the span (not times cells / span: that overflows for subnormal spans).
-    with np.errstate(invalid='ignore', divide='ignore'):
-        fraction = np.where(span > 0.0, (points - low) / np.where(span > 0.0, span, 1.0), 0.0)
-    bins = np.minimum((fraction * cells).astype(int), cells - 1)
+    # The offset times cells / span, or over the span where that quotient overflows (subnormal).
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+        factor = np.where(span > 0.0, cells / np.where(span > 0.0, span, 1.0), 0.0)
+        divided = (
+            np.where(span > 0.0, (points - low) / np.where(span > 0.0, span, 1.0), 0.0) * cells
+        )
+        scaled = np.where(
+            np.isfinite(factor),
+            (points - low) * np.where(np.isfinite(factor), factor, 0.0),
+            divided,
+        )
+    bins = np.minimum(scaled.astype(int), cells - 1)
     out = []
     for axis in range(3):
         others = [(axis + 1) % 3, (axis + 2) % 3]
