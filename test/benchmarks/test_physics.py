@@ -241,8 +241,12 @@ def test_the_run_writes_the_promised_json_and_tables(bench, tmp_path, capsys):
         # the trial stopped before: None); the others close where they were sent.
         if record['contender'] != 'paper':
             assert record['advance'] in (0.0, None), record
-    paper = [r['advance'] for r in records if r['contender'] == 'paper']
-    assert any(a not in (0.0, None) for a in paper), paper
+    # A paper grasp's advance is unknown exactly when its trial stopped before the approach ended
+    # (the guarded approach itself is tested in test/evaluation/physics/test_trial.py).
+    for record in records:
+        if record['contender'] == 'paper':
+            stopped = record['detail'].endswith(('pre-grasp pose', 'on the approach'))
+            assert (record['advance'] is None) == stopped, record
     views = [v for v in data['views'] if v['contender'] == 'node']
     assert sum(v['top1'] for v in views) == round(data['contenders']['node']['top1'] * 2)
     judge = data['judge']['all']
