@@ -164,7 +164,7 @@ def _place_hand(
             u = band_u[j]
             v = band_v[j]
             passed = u <= tip
-            reached = passed and u >= tip - pad
+            reached = passed & (u >= tip - pad)
             low = min(low, v if passed else inf)
             high = max(high, v if passed else -inf)
             pad_low = min(pad_low, v if reached else inf)
@@ -259,7 +259,7 @@ def _evaluate(
                 along = dx * a[0] + dy * a[1] + dz * a[2]
                 closing = dx * c[0] + dy * c[1] + dz * c[2]
                 across[k] = side
-                in_front = abs(side) <= palm_x and abs(closing) <= palm_y
+                in_front = (abs(side) <= palm_x) & (abs(closing) <= palm_y)
                 palm_first = min(palm_first, along if in_front else inf)
         else:
             for k in range(count):
@@ -365,7 +365,7 @@ def _evaluate(
             for j in range(used):
                 u = used_u[j]
                 window[reached] = j
-                reached += u >= tip - finger and u <= tip
+                reached += (u >= tip - finger) & (u <= tip)
             for q in range(reached):
                 j = window[q]
                 v = used_v[j]
@@ -395,7 +395,7 @@ def _evaluate(
             bottom = first
             for j in range(n):
                 u = band_u[j]
-                outside = u > tip and u <= tip + params[P_BEYOND]
+                outside = (u > tip) & (u <= tip + params[P_BEYOND])
                 beyond_low = min(beyond_low, band_v[j] if outside else inf)
                 beyond_high = max(beyond_high, band_v[j] if outside else -inf)
                 between = abs(band_v[j] - center) <= half
