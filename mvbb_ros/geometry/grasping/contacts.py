@@ -108,6 +108,20 @@ HAND_PLACED, HAND_MISSED, HAND_BEYOND_REACH = range(3)
 REACH_SLACK = 0.5
 
 
+#: Numba's floating-point flags for a reduction of finite values by their minimum: exact in any
+#: order, so the compiler may spread it over vector lanes.
+REDUCTION_MATH = {'nnan', 'nsz', 'reassoc'}
+
+
+@nb.njit(cache=True, nogil=True, fastmath=REDUCTION_MATH)
+def _least(values: FloatArray, count: int) -> float:
+    """Return the least of the first `count` values (inf when none)."""
+    least = math.inf
+    for k in range(count):
+        least = min(least, values[k])
+    return least
+
+
 @nb.njit(cache=True, nogil=True)
 def _place_hand(
     band_u: FloatArray,
@@ -219,6 +233,7 @@ def _evaluate(
     ys = np.ascontiguousarray(points[:, 1])
     zs = np.ascontiguousarray(points[:, 2])
     across = np.empty(count)
+    masked = np.empty(count)
     band_u = np.empty(count)
     band_v = np.empty(count)
     band_k = np.empty(count, dtype=np.int64)
@@ -244,26 +259,32 @@ def _evaluate(
         s0 = a[1] * c[2] - a[2] * c[1]
         s1 = a[2] * c[0] - a[0] * c[2]
         s2 = a[0] * c[1] - a[1] * c[0]
+        # The line in locals: the loops below store into arrays the compiler cannot tell apart
+        # from the line's, and would read the line again at every point (no vector lanes).
+        o0, o1, o2 = o[0], o[1], o[2]
+        a0, a1, a2 = a[0], a[1], a[2]
+        c0, c1, c2 = c[0], c[1], c[2]
         # The distances across first (a loop the compiler vectorizes), then the band; with a
-        # palm, the nearest point in front of it in the same loop (it stops the fingertips at
-        # most the fingers' length past that point).
+        # palm, the nearest point in front of it (it stops the fingertips at most the fingers'
+        # length past that point): each point's distance in front or inf, then the least.
         palm_first = inf
         if params[P_PALM_HALF_WIDTH] > 0.0:
             palm_x = params[P_PALM_HALF_DEPTH]
             palm_y = params[P_PALM_HALF_WIDTH]
             for k in range(count):
-                dx = xs[k] - o[0]
-                dy = ys[k] - o[1]
-                dz = zs[k] - o[2]
+                dx = xs[k] - o0
+                dy = ys[k] - o1
+                dz = zs[k] - o2
                 side = dx * s0 + dy * s1 + dz * s2
-                along = dx * a[0] + dy * a[1] + dz * a[2]
-                closing = dx * c[0] + dy * c[1] + dz * c[2]
+                along = dx * a0 + dy * a1 + dz * a2
+                closing = dx * c0 + dy * c1 + dz * c2
                 across[k] = side
                 in_front = (abs(side) <= palm_x) & (abs(closing) <= palm_y)
-                palm_first = min(palm_first, along if in_front else inf)
+                masked[k] = along if in_front else inf
+            palm_first = _least(masked, count)
         else:
             for k in range(count):
-                across[k] = (xs[k] - o[0]) * s0 + (ys[k] - o[1]) * s1 + (zs[k] - o[2]) * s2
+                across[k] = (xs[k] - o0) * s0 + (ys[k] - o1) * s1 + (zs[k] - o2) * s2
         # The band, and the first contact of a hand centred on the line (the same for every
         # finger depth).
         # Compactions here go without branches (a branch on where a point lies mispredicts:
@@ -274,17 +295,17 @@ def _evaluate(
             band_k[n] = k
             n += abs(across[k]) <= pad / 2.0
         tip_palm = palm_first + params[P_LENGTH] - params[P_PALM_MARGIN]
-        first_centred = inf
         for j in range(n):
             k = band_k[j]
-            dx = xs[k] - o[0]
-            dy = ys[k] - o[1]
-            dz = zs[k] - o[2]
-            u = dx * a[0] + dy * a[1] + dz * a[2]
-            v = dx * c[0] + dy * c[1] + dz * c[2]
+            dx = xs[k] - o0
+            dy = ys[k] - o1
+            dz = zs[k] - o2
+            u = dx * a0 + dy * a1 + dz * a2
+            v = dx * c0 + dy * c1 + dz * c2
             band_u[j] = u
             band_v[j] = v
-            first_centred = min(first_centred, u if abs(v) <= half else inf)
+            masked[j] = u if abs(v) <= half else inf
+        first_centred = _least(masked, n)
         if first_centred == inf:
             continue
         # The hand reaches little of the band: the points up to `reach` along the approach, in
