@@ -151,10 +151,10 @@ def test_a_part_fit_is_the_fit_with_the_part_search():
     """fit_part skips the checks only: fit_box's box with PART_SEARCH (or SMALL_PART_SEARCH)."""
     many = np.tile(_cuboid_cloud(2), (3, 1))
     size = PART_SEARCH['coreset_min']
-    for points, search in ((many[:size], PART_SEARCH), (many[: size - 1], SMALL_PART_SEARCH)):
+    for points, knobs in ((many[:size], PART_SEARCH), (many[: size - 1], SMALL_PART_SEARCH)):
         points = np.ascontiguousarray(points)
         part = fit_part(points, seed=3)
-        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **search), strict=True):
+        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **knobs), strict=True):
             np.testing.assert_array_equal(mine, plain)
         assert not part.extents.flags.writeable
         _assert_valid(part, points)
