@@ -116,10 +116,17 @@ REDUCTION_MATH = {'nnan', 'nsz', 'reassoc'}
 @nb.njit(cache=True, nogil=True, fastmath=REDUCTION_MATH)
 def _least(values: FloatArray, count: int) -> float:
     """Return the least of the first `count` values (inf when none)."""
-    least = math.inf
-    for k in range(count):
-        least = min(least, values[k])
-    return least
+    # Four running minima side by side: one would wait on the last at every value.
+    least_0 = least_1 = least_2 = least_3 = math.inf
+    quads = count // 4 * 4
+    for k in range(0, quads, 4):
+        least_0 = min(least_0, values[k])
+        least_1 = min(least_1, values[k + 1])
+        least_2 = min(least_2, values[k + 2])
+        least_3 = min(least_3, values[k + 3])
+    for k in range(quads, count):
+        least_0 = min(least_0, values[k])
+    return min(min(least_0, least_1), min(least_2, least_3))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -152,10 +159,18 @@ def _place_hand(
     for iteration in range(4):
         if iteration > 0:
             previous = first
-            first = inf
-            for j in range(count):
-                # Selects, not branches: the points come in space order, not along the approach.
+            # Selects, not branches: the points come in space order, not along the approach;
+            # two running minima side by side.
+            first = first_2 = inf
+            pairs = count // 2 * 2
+            for j in range(0, pairs, 2):
                 first = min(first, band_u[j] if abs(band_v[j] - center) <= half else inf)
+                u = band_u[j + 1]
+                first_2 = min(first_2, u if abs(band_v[j + 1] - center) <= half else inf)
+            if pairs < count:
+                j = count - 1
+                first = min(first, band_u[j] if abs(band_v[j] - center) <= half else inf)
+            first = min(first, first_2)
             if first == inf:
                 status = HAND_MISSED if reach == inf else HAND_BEYOND_REACH
                 return status, first, tip, center, low, high, pad_low, pad_high
@@ -411,16 +426,35 @@ def _evaluate(
             # past the fingertips stands out further on its side) lies flat on it: the contact
             # normal is the pad's, whatever the estimated normals of an edge say. A pad whose
             # tip touches the slope of a bulge beyond it pushes along the surface's normal.
-            beyond_low = inf
-            beyond_high = -inf
-            bottom = first
-            for j in range(n):
+            # Two points a step, each into its own extremes: twice the chains side by side.
+            beyond_limit = tip + params[P_BEYOND]
+            beyond_low = beyond_low_2 = inf
+            beyond_high = beyond_high_2 = -inf
+            bottom = bottom_2 = first
+            pairs = n // 2 * 2
+            for j in range(0, pairs, 2):
                 u = band_u[j]
-                outside = (u > tip) & (u <= tip + params[P_BEYOND])
-                beyond_low = min(beyond_low, band_v[j] if outside else inf)
-                beyond_high = max(beyond_high, band_v[j] if outside else -inf)
-                between = abs(band_v[j] - center) <= half
-                bottom = max(bottom, u if between else first)
+                v = band_v[j]
+                outside = (u > tip) & (u <= beyond_limit)
+                beyond_low = min(beyond_low, v if outside else inf)
+                beyond_high = max(beyond_high, v if outside else -inf)
+                bottom = max(bottom, u if abs(v - center) <= half else first)
+                u = band_u[j + 1]
+                v = band_v[j + 1]
+                outside = (u > tip) & (u <= beyond_limit)
+                beyond_low_2 = min(beyond_low_2, v if outside else inf)
+                beyond_high_2 = max(beyond_high_2, v if outside else -inf)
+                bottom_2 = max(bottom_2, u if abs(v - center) <= half else first)
+            for j in range(pairs, n):
+                u = band_u[j]
+                v = band_v[j]
+                outside = (u > tip) & (u <= beyond_limit)
+                beyond_low = min(beyond_low, v if outside else inf)
+                beyond_high = max(beyond_high, v if outside else -inf)
+                bottom = max(bottom, u if abs(v - center) <= half else first)
+            beyond_low = min(beyond_low, beyond_low_2)
+            beyond_high = max(beyond_high, beyond_high_2)
+            bottom = max(bottom, bottom_2)
             # Only where the pad touches above its tip: a touch at the tip alone may be the
             # slope of a bulge the view does not show.
             if params[P_BEYOND] > 0.0:
