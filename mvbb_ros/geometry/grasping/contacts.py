@@ -129,6 +129,27 @@ def _least(values: FloatArray, count: int) -> float:
     return min(min(least_0, least_1), min(least_2, least_3))
 
 
+@nb.njit(cache=True, nogil=True, inline='always')
+def _beyond_step(
+    u: float,
+    v: float,
+    tip: float,
+    limit: float,
+    center: float,
+    half: float,
+    first: float,
+    low: float,
+    high: float,
+    bottom: float,
+) -> tuple[float, float, float]:
+    """Add one band point (`u` along the approach, `v` along the closing) to the extremes."""
+    outside = (u > tip) & (u <= limit)
+    low = min(low, v if outside else math.inf)
+    high = max(high, v if outside else -math.inf)
+    bottom = max(bottom, u if abs(v - center) <= half else first)
+    return low, high, bottom
+
+
 @nb.njit(cache=True, nogil=True)
 def _place_hand(
     band_u: FloatArray,
@@ -433,25 +454,19 @@ def _evaluate(
             bottom = bottom_2 = first
             pairs = n // 2 * 2
             for j in range(0, pairs, 2):
-                u = band_u[j]
-                v = band_v[j]
-                outside = (u > tip) & (u <= beyond_limit)
-                beyond_low = min(beyond_low, v if outside else inf)
-                beyond_high = max(beyond_high, v if outside else -inf)
-                bottom = max(bottom, u if abs(v - center) <= half else first)
-                u = band_u[j + 1]
-                v = band_v[j + 1]
-                outside = (u > tip) & (u <= beyond_limit)
-                beyond_low_2 = min(beyond_low_2, v if outside else inf)
-                beyond_high_2 = max(beyond_high_2, v if outside else -inf)
-                bottom_2 = max(bottom_2, u if abs(v - center) <= half else first)
+                beyond_low, beyond_high, bottom = _beyond_step(
+                    band_u[j], band_v[j], tip, beyond_limit, center, half, first,
+                    beyond_low, beyond_high, bottom,
+                )  # fmt: skip
+                beyond_low_2, beyond_high_2, bottom_2 = _beyond_step(
+                    band_u[j + 1], band_v[j + 1], tip, beyond_limit, center, half, first,
+                    beyond_low_2, beyond_high_2, bottom_2,
+                )  # fmt: skip
             for j in range(pairs, n):
-                u = band_u[j]
-                v = band_v[j]
-                outside = (u > tip) & (u <= beyond_limit)
-                beyond_low = min(beyond_low, v if outside else inf)
-                beyond_high = max(beyond_high, v if outside else -inf)
-                bottom = max(bottom, u if abs(v - center) <= half else first)
+                beyond_low, beyond_high, bottom = _beyond_step(
+                    band_u[j], band_v[j], tip, beyond_limit, center, half, first,
+                    beyond_low, beyond_high, bottom,
+                )  # fmt: skip
             beyond_low = min(beyond_low, beyond_low_2)
             beyond_high = max(beyond_high, beyond_high_2)
             bottom = max(bottom, bottom_2)
