@@ -32,6 +32,7 @@ from mvbb_ros.pipeline.filtering import (
     crop_points,
     filter_points,
     FilterCounts,
+    finite_bounds,
     outlier_step,
     voxel_down_sample,
     voxel_step,
@@ -366,12 +367,14 @@ def process_points(
     array = np.asarray(points)
     bounds = None if decoded is None else decoded.bounds
     finite = None if decoded is None else decoded.finite
-    reason = implausible_extent(array, bounds)
+    # The corners the checks below need, measured once (the decoder's when it measured them).
+    corners = bounds if bounds is not None or len(array) == 0 else finite_bounds(array)
+    reason = implausible_extent(array, corners)
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
-    units_note = units_hint(array, bounds)
-    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, bounds)
+    units_note = units_hint(array, corners)
+    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, corners)
     if near is not None:
         # The region of interest before the filters: a room-sized cloud shrinks first.
         array, bounds, finite = array[near], None, None
