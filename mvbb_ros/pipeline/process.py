@@ -23,6 +23,7 @@ from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.grasping.refine import refine_grasps, RefinedGrasps
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
+from mvbb_ros.geometry.views.cells import search_tree
 from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.budget import FrameBudget
@@ -48,7 +49,6 @@ from mvbb_ros.pipeline.scene import (
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,7 +191,7 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
     size.
     """
     sample = points[:: max(1, len(points) // 256)]
-    distances, _ = cKDTree(points).query(sample, k=2)
+    distances, _ = search_tree(points).query(sample, k=2)
     spacing = max(float(np.median(distances[:, 1])), voxel_size)
     if spacing > 0.0:
         return spacing
