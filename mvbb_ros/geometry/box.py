@@ -286,7 +286,9 @@ def rotation_quaternions(matrices: FloatArray) -> FloatArray:
 
 
 @nb.njit(cache=True, nogil=True)
-def _inside(points: FloatArray, center: FloatArray, rotation: FloatArray, limits: FloatArray):
+def _inside(
+    points: FloatArray, center: FloatArray, rotation: FloatArray, limits: FloatArray
+) -> NDArray[np.bool_]:
     """Tell which points lie within `limits` of `center` along every box axis (one pass)."""
     inside = np.empty(points.shape[0], dtype=np.bool_)
     for i in range(points.shape[0]):
