@@ -50,6 +50,25 @@ def column_span(values: NDArray[_Number]) -> NDArray[_Number]:
     return cast('NDArray[_Number]', column_max(values) - column_min(values))
 
 
+# Sorting -----------------------------------------------------------------------------------------
+# np.lexsort compares its keys through a generic indirect merge sort, much slower than
+# a stable argsort of one float64 key, which gives the same order when the first key has no ties.
+
+
+def lexicographic_order(*keys: NDArray[np.generic]) -> IndexArray:
+    """
+    Return ``np.lexsort(keys[::-1])``: the stable order by `keys[0]`, ties by `keys[1]`, ...
+
+    Each key is a 1D array of finite values, all of one length. One stable argsort when the
+    first key has no ties (points' coordinates rarely do), else np.lexsort.
+    """
+    order = np.argsort(keys[0], kind='stable')
+    first = keys[0][order]
+    if len(keys) == 1 or not np.any(first[1:] == first[:-1]):
+        return order
+    return np.lexsort(keys[::-1])
+
+
 # Vector products -------------------------------------------------------------------------------
 # np.cross moves axes and checks shapes, a fixed cost a call whatever the size, and the
 # grasps, the refinement and the completion call it a dozen times a cloud. The same products in

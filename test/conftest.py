@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 import random
 
+from hypothesis import settings
 from mvbb_ros.kernels import warm_up
 import pytest
 from support.data import require_shared_data
@@ -15,6 +16,13 @@ from support.data import require_shared_data
 # subprocesses that tests start).
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(1, 101)))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+# Property tests draw new examples on every local run (that is how they find bugs: a failing
+# example found so is then pinned with @example); in CI (the variable CI set, as .ci/run's
+# callers do) they draw the same ones every time, so a clean checkout's verdict is reproducible.
+settings.register_profile('ci', derandomize=True, print_blob=True)
+if os.environ.get('CI'):
+    settings.load_profile('ci')
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -10,6 +10,7 @@ from mvbb_ros.arrays import (
     column_min,
     column_span,
     cross,
+    lexicographic_order,
     perpendicular_axes,
     read_only,
 )
@@ -62,3 +63,16 @@ def test_read_only_is_a_float_copy_that_cannot_be_written():
     assert frozen[0, 0] == 1.0, 'a copy, not a view'
     with pytest.raises(ValueError):
         frozen[0, 0] = 5.0
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        st.tuples(st.integers(0, 60), st.integers(1, 3)),
+        elements=st.sampled_from([-1.0, -0.0, 0.0, 0.5, 2.0]) | finite,
+    )
+)
+def test_lexicographic_order_is_lexsorts_with_and_without_ties(keys):
+    columns = [keys[:, column] for column in range(keys.shape[1])]
+    np.testing.assert_array_equal(lexicographic_order(*columns), np.lexsort(columns[::-1]))

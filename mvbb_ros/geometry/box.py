@@ -198,8 +198,8 @@ class Box:
         `tol` is in the points' units; None uses :meth:`default_tolerance`.
         """
         margin = self.default_tolerance() if tol is None else float(tol)
-        local = self.to_local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-        return np.all(np.abs(local) <= self.half_extents + margin, axis=1)
+        pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        return _inside(pts, self.center, self.rotation, self.half_extents + margin)
 
     # Serialisation -------------------------------------------------------------------------------
 
@@ -285,6 +285,25 @@ def rotation_quaternions(matrices: FloatArray) -> FloatArray:
     return _quaternions(stack)
 
 
+@nb.njit(cache=True, nogil=True)
+def _inside(
+    points: FloatArray, center: FloatArray, rotation: FloatArray, limits: FloatArray
+) -> NDArray[np.bool_]:
+    """Tell which points lie within `limits` of `center` along every box axis (one pass)."""
+    inside = np.empty(points.shape[0], dtype=np.bool_)
+    for i in range(points.shape[0]):
+        dx = points[i, 0] - center[0]
+        dy = points[i, 1] - center[1]
+        dz = points[i, 2] - center[2]
+        ok = True
+        for axis in range(3):
+            local = dx * rotation[0, axis] + dy * rotation[1, axis] + dz * rotation[2, axis]
+            ok &= abs(local) <= limits[axis]
+        inside[i] = ok
+    return inside
+
+
 def warm_up() -> None:
-    """Run the module's kernel once (see :mod:`mvbb_ros.kernels`)."""
+    """Run the module's kernels once (see :mod:`mvbb_ros.kernels`)."""
     _quaternions(np.eye(3)[None])
+    Box(np.zeros(3), np.eye(3), np.ones(3)).contains(np.zeros((1, 3)))

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import math
 
 from mvbb_ros.arrays import column_max, column_min, FloatArray
+from mvbb_ros.geometry.views.cells import search_tree
 from mvbb_ros.pipeline.filtering import filter_points
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 #: A finer edge is used only when it is at most this share of the voxel size (a few per cent
 #: finer would add work for nothing).
@@ -92,7 +92,7 @@ def finer_object_points(
     region = np.asarray(raw[inside], dtype=np.float64)
     if not len(region):
         return None
-    distances, _ = cKDTree(observed).query(region, distance_upper_bound=reach)
+    distances, _ = search_tree(observed).query(region, distance_upper_bound=reach)
     near = region[np.isfinite(distances)]
     points, _ = filter_points(
         near,

@@ -80,6 +80,7 @@ __all__ = [
     'crop_box',
     'crop_points',
     'filter_points',
+    'finite_bounds',
     'inside_box',
     'outlier_step',
     'voxel_down_sample',
@@ -562,6 +563,18 @@ def _crop(points: Any, box: Any, out: Any) -> Any:
             out[count, 2] = z
             count += 1
     return count
+
+
+def finite_bounds(points: ArrayLike) -> NDArray[np.float64] | None:
+    """
+    Return the ``(2, 3)`` min and max corners of `points` ``(N, 3)``, N >= 1, in one pass.
+
+    None when a point is not finite (the filters then say which).
+    """
+    array = _readonly_points(points)
+    box, _ = crop_box(None, None)
+    bounds = np.empty((2, 3))
+    return None if _crop_bounds(array, box, False, bounds) < 0 else bounds
 
 
 def crop_points(

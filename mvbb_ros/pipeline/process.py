@@ -23,6 +23,7 @@ from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.grasping.refine import refine_grasps, RefinedGrasps
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
+from mvbb_ros.geometry.views.cells import search_tree
 from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.budget import FrameBudget
@@ -32,6 +33,7 @@ from mvbb_ros.pipeline.filtering import (
     crop_points,
     filter_points,
     FilterCounts,
+    finite_bounds,
     outlier_step,
     voxel_down_sample,
     voxel_step,
@@ -47,7 +49,6 @@ from mvbb_ros.pipeline.scene import (
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,7 +191,7 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
     size.
     """
     sample = points[:: max(1, len(points) // 256)]
-    distances, _ = cKDTree(points).query(sample, k=2)
+    distances, _ = search_tree(points).query(sample, k=2)
     spacing = max(float(np.median(distances[:, 1])), voxel_size)
     if spacing > 0.0:
         return spacing
@@ -366,12 +367,14 @@ def process_points(
     array = np.asarray(points)
     bounds = None if decoded is None else decoded.bounds
     finite = None if decoded is None else decoded.finite
-    reason = implausible_extent(array, bounds)
+    # The corners the checks below need, measured once (the decoder's when it measured them).
+    corners = bounds if bounds is not None or len(array) == 0 else finite_bounds(array)
+    reason = implausible_extent(array, corners)
     if reason is not None:
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
-    units_note = units_hint(array, bounds)
-    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, bounds)
+    units_note = units_hint(array, corners)
+    near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, corners)
     if near is not None:
         # The region of interest before the filters: a room-sized cloud shrinks first.
         array, bounds, finite = array[near], None, None

@@ -122,6 +122,20 @@ def test_contains_uses_the_tolerance():
     np.testing.assert_array_equal(box.contains(points, tol=0.0), [True, False, False])
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31), st.floats(0.0, 0.05))
+def test_property_contains_is_the_box_frame_test(seed, tol):
+    rng = np.random.default_rng(seed)
+    box = _box(seed % 1000, center=rng.normal(size=3), extents=rng.uniform(0.0, 1.0, 3))
+    points = box.center + rng.normal(size=(300, 3)) * 0.5
+    points[:3] = box.corners()[:3]  # on the boundary: inside with the default tolerance
+    slack = np.abs(box.to_local(points)) - (box.half_extents + tol)
+    expected = np.all(slack <= 0.0, axis=1)
+    clear = np.all(np.abs(slack) > 1e-12, axis=1)  # rounding decides nothing here
+    np.testing.assert_array_equal(box.contains(points, tol=tol)[clear], expected[clear])
+    assert box.contains(points[:3]).all()
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     seed=st.integers(0, 10_000),

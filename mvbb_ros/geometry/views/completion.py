@@ -40,6 +40,7 @@ from mvbb_ros.arrays import (
     cross,
     FloatArray,
     IndexArray,
+    lexicographic_order,
     perpendicular_axes,
     read_only,
 )
@@ -364,7 +365,7 @@ def find_mirror_plane(
     :return: the plane.
     """
     # An evenly spread sample that does not depend on the order of the points.
-    ordered = points[np.lexsort(points.T[::-1])]
+    ordered = points[lexicographic_order(points[:, 0], points[:, 1], points[:, 2])]
     sample = np.ascontiguousarray(ordered[:: max(1, len(points) // MIRROR_SAMPLE)])
     center = points.mean(axis=0)
     view = center - raster.viewpoint

@@ -19,7 +19,7 @@ from __future__ import annotations
 import itertools
 
 from mvbb_ros.arrays import FloatArray, IndexArray, perpendicular_axes
-from mvbb_ros.geometry.views.cells import cell_grid, cell_start, column_keys
+from mvbb_ros.geometry.views.cells import cell_grid, cell_start, column_keys, search_tree
 from mvbb_ros.geometry.views.raster import view_raster
 import numba as nb
 import numpy as np
@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree, ConvexHull, QhullError
+from scipy.spatial import ConvexHull, QhullError
 
 #: Two clusters closer than this many cluster tolerances, touching in the view, are one object.
 #: Measured on the shared real scans: pieces of one object separated by self-occlusion or an
@@ -306,7 +306,7 @@ def _join_pieces(
         label: set(np.unique(outline_labels[np.isin(outline_cells, grown[label])]).tolist())
         for label in pieces.tolist()
     }
-    trees = {label: cKDTree(points[members[label]]) for label in pieces.tolist()}
+    trees = {label: search_tree(points[members[label]]) for label in pieces.tolist()}
     gap = PIECE_GAP_FACTOR * tolerance
     edges = []
     for first, second in itertools.combinations(pieces.tolist(), 2):
