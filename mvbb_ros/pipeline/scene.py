@@ -92,6 +92,9 @@ class SceneSettings:
 #: Random triples tried, and the most points they are scored on.
 RANSAC_HYPOTHESES = 1024
 RANSAC_SAMPLE = 2048
+#: The sample is scored in blocks of this many points: a triple that can no longer beat the
+#: best one stops being scored.
+RANSAC_BLOCK = 128
 #: The least-squares refits use at most this many inliers (evenly strided).
 REFIT_POINTS = 16384
 #: With an up direction, only planes tilted at most this far from it are tried, and a refitted
@@ -257,8 +260,8 @@ def fit_plane(
         return None
     normals = normals[usable] / lengths[usable, None]
     offsets = -np.einsum('ij,ij->i', normals, triples[usable, 0])
-    scores = _count_near(sample, normals, offsets, distance)
-    best = int(np.argmax(scores))
+    columns = np.ascontiguousarray(sample.T, dtype=np.float64)
+    best = _best_plane(columns, normals, offsets, distance, RANSAC_BLOCK)
     normal, offset = normals[best], float(offsets[best])
     near = np.abs(points @ normal + offset) <= distance
     if np.count_nonzero(near) >= 3:
@@ -266,20 +269,69 @@ def fit_plane(
     return normal, offset
 
 
-@njit('int64[:](float64[:, :], float64[:, :], float64[:], float64)', cache=True, nogil=True)
-def _count_near(
-    points: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float
-) -> IndexArray:
-    """Return, for each plane (normal, offset), how many `points` lie within `distance`."""
-    counts = np.zeros(normals.shape[0], dtype=np.int64)
-    for h in range(normals.shape[0]):
-        a, b, c, d = normals[h, 0], normals[h, 1], normals[h, 2], offsets[h]
-        count = 0
-        for i in range(points.shape[0]):
-            if abs(a * points[i, 0] + b * points[i, 1] + c * points[i, 2] + d) <= distance:
-                count += 1
-        counts[h] = count
-    return counts
+@njit
+def _near(
+    xs: Any, ys: Any, zs: Any, plane: Any, offset: float, distance: float, start: int, stop: int
+) -> int:
+    """Return how many of the points start:stop lie within `distance` of the plane."""
+    a, b, c = plane[0], plane[1], plane[2]
+    # Slices: indices from 0, which the compiler knows are not negative (the loop vectorises).
+    x, y, z = xs[start:stop], ys[start:stop], zs[start:stop]
+    near = 0
+    for i in range(x.shape[0]):
+        if abs(a * x[i] + b * y[i] + c * z[i] + offset) <= distance:
+            near += 1
+    return near
+
+
+@njit(
+    'int64(float64[:, ::1], float64[:, ::1], float64[::1], float64, int64)',
+    cache=True,
+    nogil=True,
+)
+def _best_plane(
+    columns: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float, block: int
+) -> int:
+    """
+    Return the first of the planes (normal, offset) with the most points within `distance`.
+
+    The answer of counting every plane's points (``argmax``), cheaper: a likely winner is found
+    first (Nister's preemptive scoring: every plane on a block of points, the better half on
+    the next block too, and so on) and counted whole; then every other plane is counted block
+    by block, and dropped as soon as the points left cannot make it win.
+
+    :param columns: (3, N) the points' x, y and z rows (contiguous: the count vectorises).
+    """
+    xs, ys, zs = columns[0], columns[1], columns[2]
+    count = xs.shape[0]
+    planes = normals.shape[0]
+    alive = np.arange(planes)
+    scores = np.zeros(planes, dtype=np.int64)
+    start = 0
+    while alive.shape[0] > 1 and start < count:
+        stop = min(start + block, count)
+        for k in range(alive.shape[0]):
+            h = alive[k]
+            scores[h] += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
+        start = stop
+        order = np.argsort(-scores[alive], kind='mergesort')
+        alive = alive[order[: max(1, alive.shape[0] // 2)]]
+    best = alive[0]
+    top = _near(xs, ys, zs, normals[best], offsets[best], distance, 0, count)
+    for h in range(planes):
+        if h == best:
+            continue
+        # To win: more points than the best, or as many and an earlier index.
+        need = top if h < best else top + 1
+        near = 0
+        start = 0
+        while start < count and near + count - start >= need:
+            stop = min(start + block, count)
+            near += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
+            start = stop
+        if start == count and near >= need:
+            best, top = h, near
+    return int(best)
 
 
 def _largest_patch(flat: FloatArray, cell: float) -> IndexArray:

@@ -17,6 +17,7 @@ from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 from mvbb_ros.arrays import perpendicular_axes
 from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
+from mvbb_ros.pipeline import scene as scene_module
 from mvbb_ros.pipeline.process import process_points, RESTING_GAP
 from mvbb_ros.pipeline.scene import (
     find_scene,
@@ -251,3 +252,29 @@ def test_the_whole_cloud_cut_agrees_with_the_scene_stage(seed):
     # float32 points (as decoded) give the same cut but for points on its edges.
     single = standing_mask(points.astype(np.float32), scene.support, settings)
     assert np.count_nonzero(single != standing_mask(points, scene.support, settings)) <= 3
+
+
+@hypothesis_settings(max_examples=60, deadline=None)
+@given(
+    count=st.integers(1, 700),
+    planes=st.integers(1, 300),
+    share=st.floats(0.0, 1.0),
+    block=st.sampled_from([1, 7, 64, 128]),
+    seed=st.integers(0, 10_000),
+)
+def test_property_best_plane_is_the_argmax_of_every_count(count, planes, share, block, seed):
+    """`_best_plane` (preemptive guess, then counts cut short) names ``argmax`` of all counts."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1.0, 1.0, (count, 3))
+    points[: int(share * count), 2] = rng.normal(0.0, 0.01, int(share * count))  # a plane
+    # Coarse normals and offsets: many planes tie (the first must win).
+    normals = rng.normal(0.0, 1.0, (planes, 3)) * [0.2, 0.2, 1.0]
+    normals = np.round(normals / np.linalg.norm(normals, axis=1, keepdims=True), 1)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    offsets = np.round(rng.normal(0.0, 0.05, planes), 2)
+    # The same float operations as the kernel: a x + b y + c z + d, one at a time.
+    x, y, z = (points[:, k][None] for k in range(3))
+    a, b, c = (normals[:, k][:, None] for k in range(3))
+    counts = np.count_nonzero(np.abs(a * x + b * y + c * z + offsets[:, None]) <= 0.02, axis=1)
+    columns = np.ascontiguousarray(points.T)
+    assert scene_module._best_plane(columns, normals, offsets, 0.02, block) == np.argmax(counts)
