@@ -50,6 +50,7 @@ import math
 from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, perpendicular_axes
+from mvbb_ros.geometry.views.cells import key_order
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -314,7 +315,7 @@ def _best_plane(
             h = alive[k]
             scores[h] += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
         start = stop
-        order = np.argsort(-scores[alive], kind='mergesort')
+        order = key_order(-scores[alive])  # not numba's sort: see mvbb_ros.geometry.views.cells
         alive = alive[order[: max(1, alive.shape[0] // 2)]]
     best = alive[0]
     top = _near(xs, ys, zs, normals[best], offsets[best], distance, 0, count)
