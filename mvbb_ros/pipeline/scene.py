@@ -349,10 +349,60 @@ def _largest_patch(flat: FloatArray, cell: float) -> IndexArray:
     return np.flatnonzero(point_labels == int(np.argmax(sizes)))
 
 
+@njit('boolean[::1](float64[:, ::1])', cache=True, nogil=True)
+def _off_octagon(flat: FloatArray) -> BoolArray:
+    """
+    Tell which of `flat` (N, 2) are not well inside the octagon of its extreme points.
+
+    The extreme points in 8 directions (every 45 degrees, counter-clockwise) are hull
+    vertices; what lies inside their polygon is no hull vertex. A point counts as inside only
+    when it is clearly so (by far more than rounding), so the hull of the points kept is the
+    hull of all.
+    """
+    count = flat.shape[0]
+    extreme = np.zeros(8, dtype=np.int64)
+    best = np.full(8, -np.inf)
+    scale = 0.0
+    for i in range(count):
+        x, y = flat[i, 0], flat[i, 1]
+        scale = max(scale, abs(x), abs(y))
+        along = (x, x + y, y, y - x, -x, -x - y, -y, x - y)
+        for k in range(8):
+            if along[k] > best[k]:
+                best[k], extreme[k] = along[k], i
+    keep = np.ones(count, dtype=np.bool_)
+    edges = 0
+    for k in range(8):
+        if extreme[k] != extreme[(k + 1) % 8]:
+            edges += 1
+    if edges < 3:
+        return keep
+    for i in range(count):
+        x, y = flat[i, 0], flat[i, 1]
+        inside = True
+        for k in range(8):
+            a, b = extreme[k], extreme[(k + 1) % 8]
+            ex, ey = flat[b, 0] - flat[a, 0], flat[b, 1] - flat[a, 1]
+            if ex == 0.0 and ey == 0.0:
+                continue
+            side = ex * (y - flat[a, 1]) - ey * (x - flat[a, 0])
+            if side <= 1e-9 * scale * max(abs(ex), abs(ey)):
+                inside = False
+                break
+        keep[i] = not inside
+    return keep
+
+
 def _outline_2d(flat: FloatArray) -> FloatArray:
-    """Return the convex hull of `flat` (N, 2), counter-clockwise; empty when degenerate."""
+    """
+    Return the convex hull of `flat` (N, 2), counter-clockwise; empty when degenerate.
+
+    Qhull gets only the points off the octagon of the extreme points (:func:`_off_octagon`):
+    the same hull, the same vertices in the same order, from a fraction of a table's points.
+    """
     if len(flat) < 3:
         return np.empty((0, 2))
+    flat = flat[_off_octagon(np.ascontiguousarray(flat, dtype=np.float64))]
     try:
         hull = ConvexHull(flat)
     except QhullError:
@@ -632,6 +682,7 @@ def warm_up() -> None:
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
     flat = np.column_stack([grid, np.zeros(len(grid))])
     fit_plane(flat, 0.01)
+    _outline_2d(grid)
     outline = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
     support = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0, outline, len(flat))
     for dtype in (np.float32, np.float64):

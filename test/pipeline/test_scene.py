@@ -30,7 +30,7 @@ from mvbb_ros.pipeline.scene import (
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree, ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 from support.data import load_benchmark, require_shared_data, SHARED_DATA
 
@@ -278,3 +278,34 @@ def test_property_best_plane_is_the_argmax_of_every_count(count, planes, share, 
     counts = np.count_nonzero(np.abs(a * x + b * y + c * z + offsets[:, None]) <= 0.02, axis=1)
     columns = np.ascontiguousarray(points.T)
     assert scene_module._best_plane(columns, normals, offsets, 0.02, block) == np.argmax(counts)
+
+
+@hypothesis_settings(max_examples=150, deadline=None)
+@given(
+    count=st.integers(3, 3000),
+    shape=st.sampled_from(['box', 'disc', 'normal', 'lattice', 'line']),
+    turn=st.floats(0.0, 6.3),
+    shift=st.tuples(st.floats(-5.0, 5.0), st.floats(-5.0, 5.0)),
+    seed=st.integers(0, 10_000),
+)
+def test_property_the_octagon_cull_keeps_the_outline(count, shape, turn, shift, seed):
+    """`_outline_2d` (Qhull on the points off the octagon) is Qhull's outline of all points."""
+    rng = np.random.default_rng(seed)
+    if shape == 'box':
+        flat = rng.uniform(-1.0, 1.0, (count, 2)) * [1.0, 0.3]
+    elif shape == 'disc':
+        angle, radius = rng.uniform(0.0, 2 * np.pi, count), np.sqrt(rng.uniform(0, 1, count))
+        flat = np.column_stack([np.cos(angle), np.sin(angle)]) * radius[:, None]
+    elif shape == 'normal':
+        flat = rng.normal(0.0, 1.0, (count, 2))
+    elif shape == 'lattice':  # many collinear points on the hull
+        flat = np.round(rng.uniform(-1.0, 1.0, (count, 2)) * 10.0) / 10.0
+    else:  # degenerate: Qhull fails, no outline
+        flat = np.outer(rng.uniform(-1.0, 1.0, count), [1.0, 2.0])
+    rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    flat = flat @ rotation.T + shift
+    try:
+        expected = flat[ConvexHull(flat).vertices]
+    except QhullError:
+        expected = np.empty((0, 2))
+    np.testing.assert_array_equal(scene_module._outline_2d(flat), expected)
