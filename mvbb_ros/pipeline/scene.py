@@ -95,7 +95,7 @@ RANSAC_HYPOTHESES = 1024
 RANSAC_SAMPLE = 2048
 #: The sample is scored in blocks of this many points: a triple that can no longer beat the
 #: best one stops being scored.
-RANSAC_BLOCK = 128
+RANSAC_BLOCK = 256
 #: The least-squares refits use at most this many inliers (evenly strided).
 REFIT_POINTS = 16384
 #: With an up direction, only planes tilted at most this far from it are tried, and a refitted
@@ -307,25 +307,30 @@ def _best_plane(
     count = xs.shape[0]
     planes = normals.shape[0]
     alive = np.arange(planes)
+    # Each plane's count on the first `scored` points.
     scores = np.zeros(planes, dtype=np.int64)
+    scored = np.zeros(planes, dtype=np.int64)
     start = 0
     while alive.shape[0] > 1 and start < count:
         stop = min(start + block, count)
         for k in range(alive.shape[0]):
             h = alive[k]
             scores[h] += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
+            scored[h] = stop
         start = stop
         order = key_order(-scores[alive])  # not numba's sort: see mvbb_ros.geometry.views.cells
         alive = alive[order[: max(1, alive.shape[0] // 2)]]
     best = alive[0]
-    top = _near(xs, ys, zs, normals[best], offsets[best], distance, 0, count)
+    top = scores[best] + _near(
+        xs, ys, zs, normals[best], offsets[best], distance, scored[best], count
+    )
     for h in range(planes):
         if h == best:
             continue
         # To win: more points than the best, or as many and an earlier index.
         need = top if h < best else top + 1
-        near = 0
-        start = 0
+        near = scores[h]
+        start = scored[h]
         while start < count and near + count - start >= need:
             stop = min(start + block, count)
             near += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
