@@ -342,16 +342,46 @@ def _best_plane(
 
 def _largest_patch(flat: FloatArray, cell: float) -> IndexArray:
     """Return the indices of the points of the largest 8-connected patch of `flat` (N, 2)."""
-    low = flat.min(axis=0)
-    cells = ((flat - low) / cell).astype(np.int64)
-    shape = tuple(int(v) + 1 for v in cells.max(axis=0))
-    occupied = np.zeros(shape, dtype=bool)
-    occupied[cells[:, 0], cells[:, 1]] = True
+    cells, occupied = _grid_cells(np.ascontiguousarray(flat, dtype=np.float64), float(cell))
     labels, _ = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
-    point_labels = labels[cells[:, 0], cells[:, 1]]
-    sizes = np.bincount(point_labels)
+    return _largest_label(np.ascontiguousarray(labels, dtype=np.int32), cells)
+
+
+@njit('Tuple((int64[:, ::1], boolean[:, ::1]))(float64[:, ::1], float64)', cache=True, nogil=True)
+def _grid_cells(flat: FloatArray, cell: float) -> tuple[IndexArray, BoolArray]:
+    """Return each point's cell on a grid `cell` wide from the lowest corner, and the occupied."""
+    count = flat.shape[0]
+    low_x, low_y = np.inf, np.inf
+    for i in range(count):
+        low_x, low_y = min(low_x, flat[i, 0]), min(low_y, flat[i, 1])
+    cells = np.empty((count, 2), dtype=np.int64)
+    high_x, high_y = 0, 0
+    for i in range(count):
+        cells[i, 0] = np.int64((flat[i, 0] - low_x) / cell)  # truncated, as numpy's astype
+        cells[i, 1] = np.int64((flat[i, 1] - low_y) / cell)
+        high_x, high_y = max(high_x, cells[i, 0]), max(high_y, cells[i, 1])
+    occupied = np.zeros((high_x + 1, high_y + 1), dtype=np.bool_)
+    for i in range(count):
+        occupied[cells[i, 0], cells[i, 1]] = True
+    return cells, occupied
+
+
+@njit('int64[::1](int32[:, ::1], int64[:, ::1])', cache=True, nogil=True)
+def _largest_label(labels: Any, cells: IndexArray) -> IndexArray:
+    """Return the indices of the points in the cells of the label with the most points."""
+    count = cells.shape[0]
+    sizes = np.zeros(labels.max() + 1, dtype=np.int64)
+    for i in range(count):
+        sizes[labels[cells[i, 0], cells[i, 1]]] += 1
     sizes[0] = 0
-    return np.flatnonzero(point_labels == int(np.argmax(sizes)))
+    largest = np.argmax(sizes)  # the first of the largest, as numpy's
+    kept = np.empty(sizes[largest], dtype=np.int64)
+    found = 0
+    for i in range(count):
+        if labels[cells[i, 0], cells[i, 1]] == largest:
+            kept[found] = i
+            found += 1
+    return kept
 
 
 @njit('boolean[::1](float64[:, ::1])', cache=True, nogil=True)

@@ -309,3 +309,35 @@ def test_property_the_octagon_cull_keeps_the_outline(count, shape, turn, shift, 
     except QhullError:
         expected = np.empty((0, 2))
     np.testing.assert_array_equal(scene_module._outline_2d(flat), expected)
+
+
+def _largest_patch_numpy(flat: np.ndarray, cell: float) -> np.ndarray:
+    """The patch as numpy and scipy find it (what the compiled cells must reproduce)."""
+    from scipy import ndimage
+
+    cells = ((flat - flat.min(axis=0)) / cell).astype(np.int64)
+    occupied = np.zeros(tuple(int(v) + 1 for v in cells.max(axis=0)), dtype=bool)
+    occupied[cells[:, 0], cells[:, 1]] = True
+    labels, _ = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
+    point_labels = labels[cells[:, 0], cells[:, 1]]
+    sizes = np.bincount(point_labels)
+    sizes[0] = 0
+    return np.flatnonzero(point_labels == int(np.argmax(sizes)))
+
+
+@hypothesis_settings(max_examples=150, deadline=None)
+@given(
+    count=st.integers(1, 2000),
+    patches=st.integers(1, 6),
+    cell=st.sampled_from([0.01, 0.02, 0.05, 0.3]),
+    seed=st.integers(0, 10_000),
+)
+def test_property_the_largest_patch_is_numpys(count, patches, cell, seed):
+    """`_largest_patch` (compiled cells and counts) keeps the points numpy's version keeps."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-1.0, 1.0, (patches, 2))
+    flat = centres[rng.integers(0, patches, count)] + rng.normal(0.0, 0.08, (count, 2))
+    flat = np.round(flat, 2)  # points on cell edges
+    np.testing.assert_array_equal(
+        scene_module._largest_patch(flat, cell), _largest_patch_numpy(flat, cell)
+    )
