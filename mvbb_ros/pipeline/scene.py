@@ -514,10 +514,13 @@ def _next_plane(
 ) -> _Candidate | None:
     """Return the largest plane among the `rest` of `points`, refitted on its patch."""
     indices = np.flatnonzero(rest)
-    plane = fit_plane(points[indices], distance, up)
+    # One copy of the rest, none of all the points (the same array as a copy would be).
+    whole = len(indices) == len(points) and points.flags.c_contiguous
+    subset = points if whole else points[indices]
+    plane = fit_plane(subset, distance, up)
     if plane is None:
         return None
-    patch = indices[_patch(points[indices], *plane, distance, cell)]
+    patch = indices[_patch(subset, *plane, distance, cell)]
     if len(patch) < 3:
         return None
     normal, offset = _oriented(*_plane_through(points[patch]), eye)
@@ -598,7 +601,8 @@ def find_scene(
         if len(kept) < min_points:
             reasons.append(f'plane {number}: {len(kept)} points stand on it')
             continue
-        reach = _reach(outline, points[kept] @ frame.T)
+        standing = points[kept]
+        reach = _reach(outline, standing @ frame.T)
         if reach < EXTEND_DIRECTIONS_MIN:
             reasons.append(
                 f'plane {number}: reaches past what stands on it in {reach} of '
@@ -607,13 +611,11 @@ def find_scene(
             continue
         # A table in front of a wall stands on the wall: a large plane among the standing points
         # says that this plane is the wall.
-        other = _next_plane(
-            points[kept], np.ones(len(kept), dtype=bool), distance, None, eye, cell
-        )
+        other = _next_plane(standing, np.ones(len(kept), dtype=bool), distance, None, eye, cell)
         if (
             other is not None
             and len(other.patch) >= WALL_SHARE * len(candidate.patch)
-            and _width(points[kept][other.patch] @ _frame(other.normal).T) >= WALL_WIDTH_M
+            and _width(standing[other.patch] @ _frame(other.normal).T) >= WALL_WIDTH_M
         ):
             reasons.append(f'plane {number}: another large plane stands on it (a wall?)')
             continue
