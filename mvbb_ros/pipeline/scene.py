@@ -719,6 +719,7 @@ def warm_up() -> None:
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
     flat = np.column_stack([grid, np.zeros(len(grid))])
     fit_plane(flat, 0.01)
+    _largest_patch(grid, 0.3)
     _outline_2d(grid)
     outline = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
     support = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0, outline, len(flat))
