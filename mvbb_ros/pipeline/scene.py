@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import math
 from typing import Any, get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, perpendicular_axes
+from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray, perpendicular_axes
 from mvbb_ros.geometry.views.cells import key_order
 from numba import njit, types
 import numpy as np
@@ -250,9 +250,8 @@ def fit_plane(
         return None
     rng = np.random.default_rng(seed)
     sample = points[rng.integers(0, count, min(count, RANSAC_SAMPLE))]
-    triples = sample[rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))]
-    normals = cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
-    lengths = np.linalg.norm(normals, axis=1)
+    corners = rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))
+    normals, lengths = _triple_normals(np.ascontiguousarray(sample, dtype=np.float64), corners)
     usable = lengths > 1e-12
     if up is not None:
         cosine = math.cos(math.radians(MAX_TILT_DEG))
@@ -260,7 +259,7 @@ def fit_plane(
     if not usable.any():
         return None
     normals = normals[usable] / lengths[usable, None]
-    offsets = -np.einsum('ij,ij->i', normals, triples[usable, 0])
+    offsets = -np.einsum('ij,ij->i', normals, sample[corners[usable, 0]])
     columns = np.ascontiguousarray(sample.T, dtype=np.float64)
     best = _best_plane(columns, normals, offsets, distance, RANSAC_BLOCK)
     normal, offset = normals[best], float(offsets[best])
@@ -268,6 +267,38 @@ def fit_plane(
     if np.count_nonzero(near) >= 3:
         normal, offset = _plane_through(points[near])
     return normal, offset
+
+
+@njit(
+    'Tuple((float64[:, ::1], float64[::1]))(float64[:, ::1], int64[:, ::1])',
+    cache=True,
+    nogil=True,
+)
+def _triple_normals(points: FloatArray, corners: IndexArray) -> tuple[FloatArray, FloatArray]:
+    """
+    Return the normals (not unit) of the triangles of `points` at `corners` (H, 3), and lengths.
+
+    The same floats as numpy's: (b - a) x (c - a) as :func:`mvbb_ros.arrays.cross`, and the
+    root of the squares added x, y, z (``np.linalg.norm(axis=1)``).
+    """
+    normals = np.empty((corners.shape[0], 3))
+    lengths = np.empty(corners.shape[0])
+    for h in range(corners.shape[0]):
+        a, b, c = corners[h, 0], corners[h, 1], corners[h, 2]
+        u0, u1, u2 = (
+            points[b, 0] - points[a, 0],
+            points[b, 1] - points[a, 1],
+            points[b, 2] - points[a, 2],
+        )
+        v0, v1, v2 = (
+            points[c, 0] - points[a, 0],
+            points[c, 1] - points[a, 1],
+            points[c, 2] - points[a, 2],
+        )
+        n0, n1, n2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+        normals[h, 0], normals[h, 1], normals[h, 2] = n0, n1, n2
+        lengths[h] = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    return normals, lengths
 
 
 @njit

@@ -15,7 +15,7 @@ from pathlib import Path
 from hypothesis import given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
-from mvbb_ros.arrays import perpendicular_axes
+from mvbb_ros.arrays import cross, perpendicular_axes
 from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
 from mvbb_ros.pipeline import scene as scene_module
 from mvbb_ros.pipeline.process import process_points, RESTING_GAP
@@ -341,3 +341,22 @@ def test_property_the_largest_patch_is_numpys(count, patches, cell, seed):
     np.testing.assert_array_equal(
         scene_module._largest_patch(flat, cell), _largest_patch_numpy(flat, cell)
     )
+
+
+@hypothesis_settings(max_examples=100, deadline=None)
+@given(
+    count=st.integers(1, 300),
+    planes=st.integers(1, 200),
+    scale=st.sampled_from([1e-3, 1.0, 50.0]),
+    seed=st.integers(0, 10_000),
+)
+def test_property_triple_normals_are_numpys(count, planes, scale, seed):
+    """The compiled triangle normals and lengths are numpy's floats (the cross, the norm)."""
+    rng = np.random.default_rng(seed)
+    points = rng.normal(0.0, scale, (count, 3))
+    corners = rng.integers(0, count, (planes, 3))
+    triples = points[corners]
+    expected = cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    normals, lengths = scene_module._triple_normals(points, corners)
+    np.testing.assert_array_equal(normals, expected)
+    np.testing.assert_array_equal(lengths, np.linalg.norm(expected, axis=1))
