@@ -122,7 +122,19 @@ def cell_start(sorted_keys: IndexArray, key: int) -> int:
     return low
 
 
-@nb.njit('float64[::1](float64[:, ::1], int64[::1], int64, int64[::1])', cache=True, nogil=True)
+@nb.njit(
+    [
+        nb.float64[::1](
+            nb.types.Array(nb.float64, 2, 'C', readonly=readonly),
+            nb.int64[::1],
+            nb.int64,
+            nb.int64[::1],
+        )
+        for readonly in (False, True)
+    ],
+    cache=True,
+    nogil=True,
+)
 def neighbour_distances(
     points: FloatArray, order: IndexArray, axis: int, queries: IndexArray
 ) -> FloatArray:
@@ -187,4 +199,6 @@ def warm_up() -> None:
     points = np.zeros((2, 3))
     cells, span, order, sorted_keys = cell_grid(points, 1.0, 1)
     cell_start(sorted_keys, cell_key(1, 1, 1, span))
+    neighbour_distances(points, np.arange(2), 0, np.arange(2))
+    points.flags.writeable = False
     neighbour_distances(points, np.arange(2), 0, np.arange(2))
