@@ -479,8 +479,49 @@ def _voxel_order(voxels: NDArray[np.int64], shape: tuple[int, ...]) -> NDArray[n
     """Return the order that sorts voxels by index, x slowest and z fastest."""
     if float(shape[0]) * float(shape[1]) * float(shape[2]) < 2.0**62:
         keys = (voxels[:, 0] * shape[1] + voxels[:, 1]) * shape[2] + voxels[:, 2]
-        return np.argsort(keys)  # the keys are distinct: any sort gives one order
+        return _radix_order(keys)  # the keys are distinct: any sort gives one order
     return np.lexsort((voxels[:, 2], voxels[:, 1], voxels[:, 0]))
+
+
+#: The radix sort's digit: this many bits (a table of 2**bits counts).
+RADIX_BITS = 11
+
+
+@njit('int64[::1](int64[::1])', cache=True, nogil=True)
+def _radix_order(keys: Any) -> Any:
+    """
+    Return the stable order that sorts the non-negative `keys` (``np.argsort(kind='stable')``).
+
+    A least-significant-digit radix sort, :data:`RADIX_BITS` bits a pass, as many passes as the
+    largest key needs: a few linear passes instead of numpy's comparison sort (a scene sample's
+    16k voxels: about 0.15 instead of 0.6 ms). Not numba's sort (see
+    :mod:`mvbb_ros.geometry.views.cells`).
+    """
+    count = keys.shape[0]
+    order = np.arange(count)
+    if count < 2:
+        return order
+    top = keys.max()
+    spare = np.empty(count, dtype=np.int64)
+    digits = np.int64(1) << RADIX_BITS
+    mask = digits - 1
+    starts = np.empty(digits, dtype=np.int64)
+    shift = 0
+    while shift < 63 and (top >> shift) > 0:
+        starts[:] = 0
+        for i in range(count):
+            starts[(keys[i] >> shift) & mask] += 1
+        total = 0
+        for digit in range(digits):
+            total, starts[digit] = total + starts[digit], total
+        for i in range(count):
+            at = order[i]
+            digit = (keys[at] >> shift) & mask
+            spare[starts[digit]] = at
+            starts[digit] += 1
+        order, spare = spare, order
+        shift += RADIX_BITS
+    return order
 
 
 def voxel_down_sample(

@@ -23,7 +23,7 @@ from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.grasping.refine import refine_grasps, RefinedGrasps
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
-from mvbb_ros.geometry.views.cells import search_tree
+from mvbb_ros.geometry.views.cells import neighbour_distances
 from mvbb_ros.geometry.views.completion import complete_view, CompletedView
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.budget import FrameBudget
@@ -188,11 +188,16 @@ def point_spacing(points: FloatArray, voxel_size: float) -> float:
     Return the distance between neighbouring points, metres.
 
     The median nearest-neighbour distance of an evenly spread sample, and at least the voxel
-    size.
+    size. The neighbours are found along the points sorted on their widest axis
+    (:func:`~mvbb_ros.geometry.views.cells.neighbour_distances`: a k-d tree's distances, cheaper
+    for a few hundred queries).
     """
-    sample = points[:: max(1, len(points) // 256)]
-    distances, _ = search_tree(points).query(sample, k=2)
-    spacing = max(float(np.median(distances[:, 1])), voxel_size)
+    array = np.ascontiguousarray(points, dtype=np.float64)
+    sample = np.arange(0, len(array), max(1, len(array) // 256))
+    axis = int(np.argmax(column_span(array))) if len(array) else 0
+    order = np.argsort(array[:, axis])
+    distances = neighbour_distances(array, order, axis, sample)
+    spacing = max(float(np.median(distances)), voxel_size)
     if spacing > 0.0:
         return spacing
     extent = float(np.max(column_span(points)))

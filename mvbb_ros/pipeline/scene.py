@@ -49,7 +49,8 @@ from dataclasses import dataclass
 import math
 from typing import Any, get_args, Literal
 
-from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, perpendicular_axes
+from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray, perpendicular_axes
+from mvbb_ros.geometry.views.cells import key_order
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -92,6 +93,9 @@ class SceneSettings:
 #: Random triples tried, and the most points they are scored on.
 RANSAC_HYPOTHESES = 1024
 RANSAC_SAMPLE = 2048
+#: The sample is scored in blocks of this many points: a triple that can no longer beat the
+#: best one stops being scored.
+RANSAC_BLOCK = 256
 #: The least-squares refits use at most this many inliers (evenly strided).
 REFIT_POINTS = 16384
 #: With an up direction, only planes tilted at most this far from it are tried, and a refitted
@@ -246,9 +250,8 @@ def fit_plane(
         return None
     rng = np.random.default_rng(seed)
     sample = points[rng.integers(0, count, min(count, RANSAC_SAMPLE))]
-    triples = sample[rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))]
-    normals = cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
-    lengths = np.linalg.norm(normals, axis=1)
+    corners = rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))
+    normals, lengths = _triple_normals(np.ascontiguousarray(sample, dtype=np.float64), corners)
     usable = lengths > 1e-12
     if up is not None:
         cosine = math.cos(math.radians(MAX_TILT_DEG))
@@ -256,9 +259,9 @@ def fit_plane(
     if not usable.any():
         return None
     normals = normals[usable] / lengths[usable, None]
-    offsets = -np.einsum('ij,ij->i', normals, triples[usable, 0])
-    scores = _count_near(sample, normals, offsets, distance)
-    best = int(np.argmax(scores))
+    offsets = -np.einsum('ij,ij->i', normals, sample[corners[usable, 0]])
+    columns = np.ascontiguousarray(sample.T, dtype=np.float64)
+    best = _best_plane(columns, normals, offsets, distance, RANSAC_BLOCK)
     normal, offset = normals[best], float(offsets[best])
     near = np.abs(points @ normal + offset) <= distance
     if np.count_nonzero(near) >= 3:
@@ -266,40 +269,206 @@ def fit_plane(
     return normal, offset
 
 
-@njit('int64[:](float64[:, :], float64[:, :], float64[:], float64)', cache=True, nogil=True)
-def _count_near(
-    points: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float
-) -> IndexArray:
-    """Return, for each plane (normal, offset), how many `points` lie within `distance`."""
-    counts = np.zeros(normals.shape[0], dtype=np.int64)
-    for h in range(normals.shape[0]):
-        a, b, c, d = normals[h, 0], normals[h, 1], normals[h, 2], offsets[h]
-        count = 0
-        for i in range(points.shape[0]):
-            if abs(a * points[i, 0] + b * points[i, 1] + c * points[i, 2] + d) <= distance:
-                count += 1
-        counts[h] = count
-    return counts
+@njit(
+    'Tuple((float64[:, ::1], float64[::1]))(float64[:, ::1], int64[:, ::1])',
+    cache=True,
+    nogil=True,
+)
+def _triple_normals(points: FloatArray, corners: IndexArray) -> tuple[FloatArray, FloatArray]:
+    """
+    Return the normals (not unit) of the triangles of `points` at `corners` (H, 3), and lengths.
+
+    The same floats as numpy's: (b - a) x (c - a) as :func:`mvbb_ros.arrays.cross`, and the
+    root of the squares added x, y, z (``np.linalg.norm(axis=1)``).
+    """
+    normals = np.empty((corners.shape[0], 3))
+    lengths = np.empty(corners.shape[0])
+    for h in range(corners.shape[0]):
+        a, b, c = corners[h, 0], corners[h, 1], corners[h, 2]
+        u0, u1, u2 = (
+            points[b, 0] - points[a, 0],
+            points[b, 1] - points[a, 1],
+            points[b, 2] - points[a, 2],
+        )
+        v0, v1, v2 = (
+            points[c, 0] - points[a, 0],
+            points[c, 1] - points[a, 1],
+            points[c, 2] - points[a, 2],
+        )
+        n0, n1, n2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+        normals[h, 0], normals[h, 1], normals[h, 2] = n0, n1, n2
+        lengths[h] = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    return normals, lengths
+
+
+@njit
+def _near(
+    xs: Any, ys: Any, zs: Any, plane: Any, offset: float, distance: float, start: int, stop: int
+) -> int:
+    """Return how many of the points start:stop lie within `distance` of the plane."""
+    a, b, c = plane[0], plane[1], plane[2]
+    # Slices: indices from 0, which the compiler knows are not negative (the loop vectorises).
+    x, y, z = xs[start:stop], ys[start:stop], zs[start:stop]
+    near = 0
+    for i in range(x.shape[0]):
+        if abs(a * x[i] + b * y[i] + c * z[i] + offset) <= distance:
+            near += 1
+    return near
+
+
+@njit(
+    'int64(float64[:, ::1], float64[:, ::1], float64[::1], float64, int64)',
+    cache=True,
+    nogil=True,
+)
+def _best_plane(
+    columns: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float, block: int
+) -> int:
+    """
+    Return the first of the planes (normal, offset) with the most points within `distance`.
+
+    The answer of counting every plane's points (``argmax``), cheaper: a likely winner is found
+    first (Nister's preemptive scoring: every plane on a block of points, the better half on
+    the next block too, and so on) and counted whole; then every other plane is counted block
+    by block, and dropped as soon as the points left cannot make it win.
+
+    :param columns: (3, N) the points' x, y and z rows (contiguous: the count vectorises).
+    """
+    xs, ys, zs = columns[0], columns[1], columns[2]
+    count = xs.shape[0]
+    planes = normals.shape[0]
+    alive = np.arange(planes)
+    # Each plane's count on the first `scored` points.
+    scores = np.zeros(planes, dtype=np.int64)
+    scored = np.zeros(planes, dtype=np.int64)
+    start = 0
+    while alive.shape[0] > 1 and start < count:
+        stop = min(start + block, count)
+        for k in range(alive.shape[0]):
+            h = alive[k]
+            scores[h] += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
+            scored[h] = stop
+        start = stop
+        order = key_order(-scores[alive])  # not numba's sort: see mvbb_ros.geometry.views.cells
+        alive = alive[order[: max(1, alive.shape[0] // 2)]]
+    best = alive[0]
+    top = scores[best] + _near(
+        xs, ys, zs, normals[best], offsets[best], distance, scored[best], count
+    )
+    for h in range(planes):
+        if h == best:
+            continue
+        # To win: more points than the best, or as many and an earlier index.
+        need = top if h < best else top + 1
+        near = scores[h]
+        start = scored[h]
+        while start < count and near + count - start >= need:
+            stop = min(start + block, count)
+            near += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
+            start = stop
+        if start == count and near >= need:
+            best, top = h, near
+    return int(best)
 
 
 def _largest_patch(flat: FloatArray, cell: float) -> IndexArray:
     """Return the indices of the points of the largest 8-connected patch of `flat` (N, 2)."""
-    low = flat.min(axis=0)
-    cells = ((flat - low) / cell).astype(np.int64)
-    shape = tuple(int(v) + 1 for v in cells.max(axis=0))
-    occupied = np.zeros(shape, dtype=bool)
-    occupied[cells[:, 0], cells[:, 1]] = True
+    cells, occupied = _grid_cells(np.ascontiguousarray(flat, dtype=np.float64), float(cell))
     labels, _ = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
-    point_labels = labels[cells[:, 0], cells[:, 1]]
-    sizes = np.bincount(point_labels)
+    return _largest_label(np.ascontiguousarray(labels, dtype=np.int32), cells)
+
+
+@njit('Tuple((int64[:, ::1], boolean[:, ::1]))(float64[:, ::1], float64)', cache=True, nogil=True)
+def _grid_cells(flat: FloatArray, cell: float) -> tuple[IndexArray, BoolArray]:
+    """Return each point's cell on a grid `cell` wide from the lowest corner, and the occupied."""
+    count = flat.shape[0]
+    low_x, low_y = np.inf, np.inf
+    for i in range(count):
+        low_x, low_y = min(low_x, flat[i, 0]), min(low_y, flat[i, 1])
+    cells = np.empty((count, 2), dtype=np.int64)
+    high_x, high_y = 0, 0
+    for i in range(count):
+        cells[i, 0] = np.int64((flat[i, 0] - low_x) / cell)  # truncated, as numpy's astype
+        cells[i, 1] = np.int64((flat[i, 1] - low_y) / cell)
+        high_x, high_y = max(high_x, cells[i, 0]), max(high_y, cells[i, 1])
+    occupied = np.zeros((high_x + 1, high_y + 1), dtype=np.bool_)
+    for i in range(count):
+        occupied[cells[i, 0], cells[i, 1]] = True
+    return cells, occupied
+
+
+@njit('int64[::1](int32[:, ::1], int64[:, ::1])', cache=True, nogil=True)
+def _largest_label(labels: Any, cells: IndexArray) -> IndexArray:
+    """Return the indices of the points in the cells of the label with the most points."""
+    count = cells.shape[0]
+    sizes = np.zeros(labels.max() + 1, dtype=np.int64)
+    for i in range(count):
+        sizes[labels[cells[i, 0], cells[i, 1]]] += 1
     sizes[0] = 0
-    return np.flatnonzero(point_labels == int(np.argmax(sizes)))
+    largest = np.argmax(sizes)  # the first of the largest, as numpy's
+    kept = np.empty(sizes[largest], dtype=np.int64)
+    found = 0
+    for i in range(count):
+        if labels[cells[i, 0], cells[i, 1]] == largest:
+            kept[found] = i
+            found += 1
+    return kept
+
+
+@njit('boolean[::1](float64[:, ::1])', cache=True, nogil=True)
+def _off_octagon(flat: FloatArray) -> BoolArray:
+    """
+    Tell which of `flat` (N, 2) are not well inside the octagon of its extreme points.
+
+    The extreme points in 8 directions (every 45 degrees, counter-clockwise) are hull
+    vertices; what lies inside their polygon is no hull vertex. A point counts as inside only
+    when it is clearly so (by far more than rounding), so the hull of the points kept is the
+    hull of all.
+    """
+    count = flat.shape[0]
+    extreme = np.zeros(8, dtype=np.int64)
+    best = np.full(8, -np.inf)
+    scale = 0.0
+    for i in range(count):
+        x, y = flat[i, 0], flat[i, 1]
+        scale = max(scale, abs(x), abs(y))
+        along = (x, x + y, y, y - x, -x, -x - y, -y, x - y)
+        for k in range(8):
+            if along[k] > best[k]:
+                best[k], extreme[k] = along[k], i
+    keep = np.ones(count, dtype=np.bool_)
+    edges = 0
+    for k in range(8):
+        if extreme[k] != extreme[(k + 1) % 8]:
+            edges += 1
+    if edges < 3:
+        return keep
+    for i in range(count):
+        x, y = flat[i, 0], flat[i, 1]
+        inside = True
+        for k in range(8):
+            a, b = extreme[k], extreme[(k + 1) % 8]
+            ex, ey = flat[b, 0] - flat[a, 0], flat[b, 1] - flat[a, 1]
+            if ex == 0.0 and ey == 0.0:
+                continue
+            side = ex * (y - flat[a, 1]) - ey * (x - flat[a, 0])
+            if side <= 1e-9 * scale * max(abs(ex), abs(ey)):
+                inside = False
+                break
+        keep[i] = not inside
+    return keep
 
 
 def _outline_2d(flat: FloatArray) -> FloatArray:
-    """Return the convex hull of `flat` (N, 2), counter-clockwise; empty when degenerate."""
+    """
+    Return the convex hull of `flat` (N, 2), counter-clockwise; empty when degenerate.
+
+    Qhull gets only the points off the octagon of the extreme points (:func:`_off_octagon`):
+    the same hull, the same vertices in the same order, from a fraction of a table's points.
+    """
     if len(flat) < 3:
         return np.empty((0, 2))
+    flat = flat[_off_octagon(np.ascontiguousarray(flat, dtype=np.float64))]
     try:
         hull = ConvexHull(flat)
     except QhullError:
@@ -376,10 +545,13 @@ def _next_plane(
 ) -> _Candidate | None:
     """Return the largest plane among the `rest` of `points`, refitted on its patch."""
     indices = np.flatnonzero(rest)
-    plane = fit_plane(points[indices], distance, up)
+    # One copy of the rest, none of all the points (the same array as a copy would be).
+    whole = len(indices) == len(points) and points.flags.c_contiguous
+    subset = points if whole else points[indices]
+    plane = fit_plane(subset, distance, up)
     if plane is None:
         return None
-    patch = indices[_patch(points[indices], *plane, distance, cell)]
+    patch = indices[_patch(subset, *plane, distance, cell)]
     if len(patch) < 3:
         return None
     normal, offset = _oriented(*_plane_through(points[patch]), eye)
@@ -460,7 +632,8 @@ def find_scene(
         if len(kept) < min_points:
             reasons.append(f'plane {number}: {len(kept)} points stand on it')
             continue
-        reach = _reach(outline, points[kept] @ frame.T)
+        standing = points[kept]
+        reach = _reach(outline, standing @ frame.T)
         if reach < EXTEND_DIRECTIONS_MIN:
             reasons.append(
                 f'plane {number}: reaches past what stands on it in {reach} of '
@@ -469,13 +642,11 @@ def find_scene(
             continue
         # A table in front of a wall stands on the wall: a large plane among the standing points
         # says that this plane is the wall.
-        other = _next_plane(
-            points[kept], np.ones(len(kept), dtype=bool), distance, None, eye, cell
-        )
+        other = _next_plane(standing, np.ones(len(kept), dtype=bool), distance, None, eye, cell)
         if (
             other is not None
             and len(other.patch) >= WALL_SHARE * len(candidate.patch)
-            and _width(points[kept][other.patch] @ _frame(other.normal).T) >= WALL_WIDTH_M
+            and _width(standing[other.patch] @ _frame(other.normal).T) >= WALL_WIDTH_M
         ):
             reasons.append(f'plane {number}: another large plane stands on it (a wall?)')
             continue
@@ -579,6 +750,8 @@ def warm_up() -> None:
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
     flat = np.column_stack([grid, np.zeros(len(grid))])
     fit_plane(flat, 0.01)
+    _largest_patch(grid, 0.3)
+    _outline_2d(grid)
     outline = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
     support = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0, outline, len(flat))
     for dtype in (np.float32, np.float64):

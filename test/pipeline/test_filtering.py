@@ -14,7 +14,12 @@ import time
 from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from mvbb_ros.pipeline.filtering import crop_points, filter_points, voxel_down_sample
+from mvbb_ros.pipeline.filtering import (
+    _radix_order,
+    crop_points,
+    filter_points,
+    voxel_down_sample,
+)
 import numpy as np
 import pytest
 from support.data import lidar_clouds, organized_frame, scan_paths, scene_grid
@@ -336,3 +341,16 @@ def test_outliers_are_skipped_when_no_more_points_than_neighbours_are_left():
     filtered, counts = filter_points(points, voxel_size=0.05, outlier_neighbors=20)
     assert counts.downsampled <= 20 and counts.inliers == counts.downsampled
     np.testing.assert_array_equal(filtered, voxel_down_sample(points, 0.05)[0])
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    hnp.arrays(
+        np.int64,
+        st.integers(0, 3000),
+        elements=st.one_of(st.integers(0, 40), st.integers(0, 2**62 - 1)),
+    )
+)
+def test_property_radix_order_is_numpys_stable_argsort(keys):
+    """The voxel grid's radix sort orders like numpy, ties (stable) and large keys included."""
+    np.testing.assert_array_equal(_radix_order(keys), np.argsort(keys, kind='stable'))

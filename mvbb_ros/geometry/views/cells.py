@@ -122,6 +122,66 @@ def cell_start(sorted_keys: IndexArray, key: int) -> int:
     return low
 
 
+@nb.njit(
+    [
+        nb.float64[::1](
+            nb.types.Array(nb.float64, 2, 'C', readonly=readonly),
+            nb.int64[::1],
+            nb.int64,
+            nb.int64[::1],
+        )
+        for readonly in (False, True)
+    ],
+    cache=True,
+    nogil=True,
+)
+def neighbour_distances(
+    points: FloatArray, order: IndexArray, axis: int, queries: IndexArray
+) -> FloatArray:
+    """
+    Return the distance from each of the points `queries` to its nearest other point.
+
+    Exact, and the same floats as scipy's k-d tree (``query(points[queries], k=2)[0][:, 1]``:
+    the squared differences added x, y, z, then the root); no tree: the points are sorted along
+    one `axis` (`order`; the widest one keeps few points close along it), and each query walks
+    out both ways from its place in that order until the distance along the axis alone is no
+    shorter than the nearest found. Infinity when there is no other point.
+
+    :param points: (N, 3) the points.
+    :param order: the order that sorts the points' `axis` coordinates.
+    :param axis: 0, 1 or 2.
+    :param queries: indices of the points whose neighbours are wanted.
+    """
+    count = points.shape[0]
+    place = np.empty(count, dtype=np.int64)
+    for k in range(count):
+        place[order[k]] = k
+    distances = np.empty(queries.shape[0])
+    for q in range(queries.shape[0]):
+        i = queries[q]
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        key = points[i, axis]
+        best = np.inf  # squared
+        # Along the axis the gaps only grow (rounding is monotonic), and a point's squared
+        # distance is at least its squared gap: the first gap as long as the best ends a walk.
+        for k in range(place[i] + 1, count):
+            j = order[k]
+            gap = points[j, axis] - key
+            if gap * gap >= best:
+                break
+            dx, dy, dz = points[j, 0] - x, points[j, 1] - y, points[j, 2] - z
+            best = min(best, dx * dx + dy * dy + dz * dz)
+        for k in range(place[i] - 1, -1, -1):
+            j = order[k]
+            gap = points[j, axis] - key
+            if gap * gap >= best:
+                break
+            dx, dy, dz = points[j, 0] - x, points[j, 1] - y, points[j, 2] - z
+            best = min(best, dx * dx + dy * dy + dz * dz)
+        distances[q] = np.sqrt(best)
+    return distances
+
+
 def search_tree(points: ArrayLike) -> cKDTree:
     """
     Return scipy's k-d tree of `points` (N, 3) for a few exact nearest or within-reach queries.
@@ -139,3 +199,6 @@ def warm_up() -> None:
     points = np.zeros((2, 3))
     cells, span, order, sorted_keys = cell_grid(points, 1.0, 1)
     cell_start(sorted_keys, cell_key(1, 1, 1, span))
+    neighbour_distances(points, np.arange(2), 0, np.arange(2))
+    points.flags.writeable = False
+    neighbour_distances(points, np.arange(2), 0, np.arange(2))
