@@ -1,9 +1,9 @@
 """
-The scene stage's time, and what it decided, on table-top frames and on the resampled scans.
+Each pipeline stage's time, and what the pipeline decided, on table-top frames and resampled scans.
 
-    taskset -c 0 .venv/bin/python benchmarks/scene_stage.py --save /tmp/branch.json
-    cd ../main && taskset -c 0 .venv/bin/python ../branch/benchmarks/scene_stage.py --save /tmp/main.json
-    .venv/bin/python benchmarks/scene_stage.py --compare /tmp/main.json /tmp/branch.json
+    taskset -c 0 .venv/bin/python benchmarks/stages.py --save /tmp/branch.json
+    cd ../main && taskset -c 0 .venv/bin/python ../branch/benchmarks/stages.py --save /tmp/main.json
+    .venv/bin/python benchmarks/stages.py --compare /tmp/main.json /tmp/branch.json --stage scene
 
 It measures the package it imports (run it from a checkout's root: the current directory comes
 first on the path), so two checkouts can be measured by one copy of this script, one after the
@@ -12,13 +12,14 @@ other (alternate them, and pin both to one core: ``taskset -c 0``). The clouds: 
 PointCloud2, through ``process_cloud``), and every shared scan resampled as issue 41 did
 (``benchmarks/workers.py``: 300k points, 1.5 mm noise, seed 3; through ``process_points``).
 The settings are the node's defaults with one worker. Per cloud, one warm-up run, then
-``--runs`` runs; the time is the median of the result's ``timings_ms['scene']``.
+``--runs`` runs; each stage's time is the median of the result's ``timings_ms[stage]``, and
+``total`` the whole call's.
 
 Besides the times it keeps what each cloud's run decided: the support plane's coefficients
 and outline, the reason when there is none, the warning, and a digest of the objects, boxes
-and grasps (``workers.fingerprint``). ``--compare`` prints each cloud's time ratio (second
-over first), whether all of that is the same bit for bit, and the median ratio of the frames
-and of the scans.
+and grasps (``workers.fingerprint``). ``--compare`` prints each cloud's time ratio of one
+``--stage`` (second over first), whether all of that is the same bit for bit, and the median
+ratio of the frames and of the scans.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ sys.path.insert(0, os.getcwd())
 
 
 def measure(seeds: list[int], runs: int, scans: bool) -> dict[str, dict]:
-    """Return, per cloud, the scene stage's times (ms) and what it decided."""
+    """Return, per cloud, every stage's times (ms) and what the pipeline decided."""
     from dataclasses import replace
 
     from mvbb_ros.evaluation.synthetic import table_top_frame
@@ -42,6 +43,7 @@ def measure(seeds: list[int], runs: int, scans: bool) -> dict[str, dict]:
     from mvbb_ros.pipeline.settings import PipelineSettings
     from mvbb_ros.ros.encode import create_cloud_xyz
     import numpy as np
+    import time
     from workers import fingerprint, resampled, SHARED_DATA
 
     base = PipelineSettings()
@@ -60,10 +62,13 @@ def measure(seeds: list[int], runs: int, scans: bool) -> dict[str, dict]:
     found = {}
     for name, run in clouds:
         result = run()
-        times = []
+        times: dict[str, list[float]] = {}
         for _ in range(runs):
+            start = time.perf_counter()
             result = run()
-            times.append(result.timings_ms['scene'])
+            total = (time.perf_counter() - start) * 1e3
+            for stage, value in {**result.timings_ms, 'total': total}.items():
+                times.setdefault(stage, []).append(value)
         support = result.support
         found[name] = {
             'times': times,
@@ -76,12 +81,12 @@ def measure(seeds: list[int], runs: int, scans: bool) -> dict[str, dict]:
     return found
 
 
-def compare(first: dict[str, dict], second: dict[str, dict]) -> None:
-    """Print each cloud's time ratio, second over first, and whether the outcomes agree."""
+def compare(first: dict[str, dict], second: dict[str, dict], stage: str) -> None:
+    """Print each cloud's time ratio of `stage`, second over first, and whether outcomes agree."""
     ratios: dict[str, list[float]] = {'frames': [], 'scans': []}
     for name, mine in first.items():
         other = second[name]
-        ratio = statistics.median(other['times']) / statistics.median(mine['times'])
+        ratio = statistics.median(other['times'][stage]) / statistics.median(mine['times'][stage])
         ratios['frames' if name.startswith('frame') else 'scans'].append(ratio)
         differ = [key for key in mine if key != 'times' and mine[key] != other[key]]
         print(
@@ -99,15 +104,19 @@ def main() -> int:
     parser.add_argument('--no-scans', action='store_true', help='only the table-top frames')
     parser.add_argument('--save', type=Path, help='write the times and outcomes here (JSON)')
     parser.add_argument('--compare', nargs=2, type=Path, help='compare two saved runs')
+    parser.add_argument('--stage', default='scene', help='the stage compared (scene), or total')
     args = parser.parse_args()
     if args.compare:
         first, second = (json.loads(path.read_text()) for path in args.compare)
-        compare(first, second)
+        compare(first, second, args.stage)
         return 0
     seeds = [int(word) for word in args.seeds.split(',') if word]
     found = measure(seeds, args.runs, not args.no_scans)
     for name, item in found.items():
-        print(f'{name:28s} scene {statistics.median(item["times"]):7.2f} ms')
+        medians = ' '.join(
+            f'{stage} {statistics.median(values):.2f}' for stage, values in item['times'].items()
+        )
+        print(f'{name:28s} {medians} (ms)')
     if args.save:
         args.save.write_text(json.dumps(found))
     return 0
