@@ -12,7 +12,8 @@ BIN := $(VENV)/bin
 # runs on Ubuntu 24.04's numba 0.59, numpy 1.26 and scipy 1.11 (requirements-compat.txt); tests
 # needing Open3D or rclpy skip there.
 COMPAT_TESTS := test/pipeline/test_decode.py test/pipeline/test_filtering.py \
-	test/pipeline/test_outliers.py test/geometry/views/test_objects.py \
+	test/pipeline/test_outliers.py test/pipeline/test_scene_kernels.py \
+	test/geometry/views/test_cells.py test/geometry/views/test_objects.py \
 	test/geometry/views/test_completion.py test/geometry/boxfit/test_fit.py \
 	test/geometry/decomposition/test_split.py test/geometry/grasping/test_surface.py \
 	test/test_arrays.py

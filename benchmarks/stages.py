@@ -1,9 +1,9 @@
 """
-Each pipeline stage's time, and what the pipeline decided, on table-top frames and resampled scans.
+Every stage's time, and what the pipeline decided, on table-top frames and resampled scans.
 
-    taskset -c 0 .venv/bin/python benchmarks/stages.py --save /tmp/branch.json
-    cd ../main && taskset -c 0 .venv/bin/python ../branch/benchmarks/stages.py --save /tmp/main.json
-    .venv/bin/python benchmarks/stages.py --compare /tmp/main.json /tmp/branch.json --stage scene
+    taskset -c 0 .venv/bin/python benchmarks/stages.py --save /tmp/new.json
+    cd ../main && taskset -c 0 .venv/bin/python ../new/benchmarks/stages.py --save /tmp/old.json
+    .venv/bin/python benchmarks/stages.py --compare /tmp/old.json /tmp/new.json --stage scene
 
 It measures the package it imports (run it from a checkout's root: the current directory comes
 first on the path), so two checkouts can be measured by one copy of this script, one after the
