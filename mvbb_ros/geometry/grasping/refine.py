@@ -542,10 +542,12 @@ def _robust_quality(
             continue
         lines = (origins[mine], approaches[mine], closings[mine])
         neighbours = _neighbours(*lines, settings.pad_size)
-        near = evaluate_lines(model, *neighbours, settings, view, pool=pool)
         if settings.finger_length > 0.0:
+            # The hand's score asks only whether each neighbour holds.
+            near = evaluate_lines(model, *neighbours, settings, view, valid_only=True, pool=pool)
             total[mine] = _hand_quality(model, *lines, rows[mine], near, settings.pad_size, view)
             continue
+        near = evaluate_lines(model, *neighbours, settings, view, pool=pool)
         quality = np.concatenate([rows[mine, COL_QUALITY], near[:, COL_QUALITY]])
         held = quality.reshape(5, len(mine)).mean(axis=0)
         centring = _centring(model, *lines, rows[mine])
