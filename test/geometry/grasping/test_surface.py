@@ -72,6 +72,37 @@ def test_normals_are_the_pca_of_every_neighbour_within_the_radius(count, seed, r
     assert np.all(agreement > 1.0 - 1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 60), max_size=80), st.integers(0, 20))
+def test_key_starts_are_the_binary_searches_they_replace(keys, extra):
+    """Each key's listed first place is cell_start's (and the places past the last key)."""
+    from mvbb_ros.geometry.views.cells import cell_start
+
+    sorted_keys = np.sort(np.array(keys, dtype=np.int64))
+    cells = (max(keys) + 1 if keys else 0) + extra
+    starts = surface._key_starts(sorted_keys, cells)
+    assert starts.tolist() == [cell_start(sorted_keys, key) for key in range(cells + 1)]
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(1, 300), st.integers(0, 2**31 - 1), st.floats(0.004, 0.03))
+def test_moments_with_listed_cells_are_the_searched_ones_bit_for_bit(count, seed, radius):
+    """The cells' listed first places give the same sums as the binary search, every reach."""
+    from mvbb_ros.geometry.views.cells import cell_grid
+
+    points = _wavy_sheet(count, seed)
+    cells, span, order, sorted_keys = cell_grid(points, radius, surface.MAX_REACH)
+    ordered = np.ascontiguousarray(points[order])
+    starts = surface._key_starts(sorted_keys, int(np.prod(span)))
+    none = np.zeros(0, dtype=np.int64)
+    for i in range(count):
+        for reach in (1, 2, surface.MAX_REACH):
+            args = (points, cells, span, ordered, sorted_keys)
+            listed = surface._moments(*args, starts, i, reach, reach * radius)
+            searched = surface._moments(*args, none, i, reach, reach * radius)
+            assert np.array(listed).tobytes() == np.array(searched).tobytes()
+
+
 def _surface_cells_by_ndimage(points: np.ndarray, cell: float, seen: int):
     """Return surface._surface_cells' answer with scipy.ndimage's closing and erosion."""
     from scipy import ndimage
