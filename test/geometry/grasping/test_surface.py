@@ -280,6 +280,41 @@ def test_the_hand_placed_on_the_band_near_the_first_contact_is_the_one_on_the_wh
     )
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    st.integers(0, 2**31 - 1),
+    st.booleans(),
+    st.booleans(),
+    st.sampled_from(['', 'lenient', 'held']),
+)
+def test_lines_asked_only_whether_they_hold_say_what_the_whole_evaluation_says(
+    seed, up, hand, mode
+):
+    """valid_only stops a line at its first depth that holds: the same COL_VALID as without."""
+    from mvbb_ros.pipeline.settings import PipelineSettings
+
+    rng = np.random.default_rng(seed)
+    rotation = Rotation.random(random_state=seed).as_matrix()
+    points = l_shape_points(seed, count=3000) @ rotation.T
+    model = surface.surface_model(points, cell=0.005, up=(0.0, 0.0, 1.0) if up else None)
+    axis = rng.integers(0, 3, 200)
+    approaches = rotation[:, axis].T * rng.choice([-1.0, 1.0], (200, 1))
+    closings = rotation[:, (axis + rng.integers(1, 3, 200)) % 3].T
+    tilt = Rotation.from_rotvec(rng.normal(scale=0.15, size=(200, 3)))
+    approaches, closings = tilt.apply(approaches), tilt.apply(closings)
+    origins = points[rng.integers(0, len(points), 200)] - 0.1 * approaches
+    view = GraspView(
+        gripper_max_width=0.08, standoff=0.05, up=np.array([0.0, 0.0, 1.0]) if up else None
+    )
+    refinement = PipelineSettings().refinement if hand else ON
+    options = {'lenient': mode == 'lenient', 'held': mode == 'held'}
+    lines = (model, origins, approaches, closings, refinement, view)
+    whole = evaluate_lines(*lines, **options)
+    asked = evaluate_lines(*lines, valid_only=True, **options)
+    assert np.array_equal(asked[:, COL_VALID], whole[:, COL_VALID])
+    assert whole[:, COL_VALID].any(), 'some lines hold'
+
+
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), outliers=st.integers(1, 5), depth=st.floats(0.005, 0.05))
 def test_the_floor_is_the_observed_base_whatever_a_few_noisy_points_below_it(
