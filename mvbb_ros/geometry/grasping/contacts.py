@@ -84,8 +84,9 @@ EVALUATION_COLUMNS = 18
     P_W_COVERAGE,
     P_TIP_CLEAR,
     P_FLAT_COS,
-) = range(27)
-PARAMETER_COUNT = 27
+    P_VALID_ONLY,
+) = range(28)
+PARAMETER_COUNT = 28
 #: The palm stays this far (metres) behind the nearest point in front of it.
 PALM_MARGIN = 0.004
 #: Points this many grid cells past the fingertips tell whether a pad lies flat on the object.
@@ -556,6 +557,8 @@ def _evaluate(
             for axis in range(6):
                 row[COL_CONTACTS + axis] = contact[axis]
             row[COL_COVERAGE] = coverage
+            if params[P_VALID_ONLY] > 0.0:
+                break  # whether the line holds is known: the first depth that holds says it
     return out
 
 
@@ -566,6 +569,7 @@ def _parameters(
     floor: float,
     lenient: bool = False,
     held: bool = False,
+    valid_only: bool = False,
 ) -> FloatArray:
     """Return the kernel's parameter vector (entries ``P_*``) for one surface's cell and floor."""
     pad = settings.pad_size
@@ -603,6 +607,7 @@ def _parameters(
     params[P_MIN_DEPTH] = MIN_DEPTH_SHARE * settings.finger_depth * min(settings.depth_fractions)
     if not settings.finger_length > 0.0:
         params[P_MIN_DEPTH] = math.inf
+    params[P_VALID_ONLY] = 1.0 if valid_only else 0.0
     return params
 
 
@@ -616,6 +621,7 @@ def evaluate_lines(
     *,
     lenient: bool = False,
     held: bool = False,
+    valid_only: bool = False,
     pool: Workers | None = None,
 ) -> FloatArray:
     """
@@ -633,13 +639,16 @@ def evaluate_lines(
     :param held: with the hand described, every pad touching where the object is widest in its
         reach lies flat (at the tip too, whatever the points' normals): the check of a grasp
         that held in the previous frame, whose contacts the view's noise moves by a cell.
+    :param valid_only: only whether each line holds is asked: a line stops at the first finger
+        depth that holds (its ``COL_VALID`` is the same; its other columns are that depth's, not
+        the best depth's).
     :param pool: the workers to spread the lines over (the rows are the same with any), or
         None for the calling thread alone.
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
     depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
     up = np.zeros(3) if view.up is None else np.asarray(view.up, dtype=np.float64)
-    params = _parameters(settings, view, model.cell, model.floor, lenient, held)
+    params = _parameters(settings, view, model.cell, model.floor, lenient, held, valid_only)
     origin_rows = np.array(origins, dtype=np.float64, order='C')
     approach_rows = np.array(approaches, dtype=np.float64, order='C')
     closing_rows = np.array(closings, dtype=np.float64, order='C')

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 import math
+import weakref
 
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
 from mvbb_ros.common.workers import Workers
@@ -152,29 +153,41 @@ def _unit_rows(vectors: FloatArray) -> FloatArray:
     return vectors / np.where(norms > 0.0, norms, 1.0)
 
 
-def _frames(box: Box, up: FloatArray | None, view: FloatArray | None) -> list[tuple]:
+#: The turns of the approaches about each closing axis (cosine, sine), as columns.
+_TURNS = np.deg2rad(np.arange(0.0, 360.0, 360.0 / APPROACHES_PER_AXIS))
+_TURN_COS = np.array([math.cos(angle) for angle in _TURNS])[:, None]
+_TURN_SIN = np.array([math.sin(angle) for angle in _TURNS])[:, None]
+
+
+def _frames(
+    box: Box, up: FloatArray | None, view: FloatArray | None
+) -> tuple[FloatArray, FloatArray]:
     """
-    Return the (approach, closing) pairs of one box: closing along each box axis.
+    Return the (approach, closing) pairs of one box, (P, 3) each: closing along each box axis.
 
     Approaches: along the other two axes, both senses (the paper's faces), then from above
     (against `up`) and along the viewing direction `view`, each made perpendicular to the
     closing axis (skipped when nearly parallel to it).
     """
     axes = box.rotation.T
-    pairs = []
+    approaches = []
+    closings = []
     for k in range(3):
         closing = axes[k]
         first, second = axes[(k + 1) % 3], axes[(k + 2) % 3]
-        for angle in np.deg2rad(np.arange(0.0, 360.0, 360.0 / APPROACHES_PER_AXIS)):
-            pairs.append((math.cos(angle) * first + math.sin(angle) * second, closing))
+        # Each turn's products and sum, element by element, as one vector at a time would.
+        turned = _TURN_COS * first + _TURN_SIN * second
+        approaches.append(turned)
+        closings.append(np.broadcast_to(closing, turned.shape))
         for direction in (None if up is None else -up, view):
             if direction is None:
                 continue
             flat = direction - (direction @ closing) * closing
             norm = float(np.linalg.norm(flat))
             if norm >= 0.3:
-                pairs.append((flat / norm, closing))
-    return pairs
+                approaches.append((flat / norm)[None, :])
+                closings.append(closing[None, :])
+    return np.concatenate(approaches), np.concatenate(closings)
 
 
 def _box_candidates(
@@ -185,9 +198,7 @@ def _box_candidates(
     rolls = np.deg2rad(np.array(ROLLS))
     slides = np.array(SLIDES)
     for index, box in enumerate(boxes):
-        pairs = _frames(box, up, views[index])
-        approaches = np.array([approach for approach, _ in pairs])  # (P, 3)
-        closings = np.array([closing for _, closing in pairs])
+        approaches, closings = _frames(box, up, views[index])  # (P, 3)
         sides = cross(approaches, closings)
         # (P, R, 3): each closing rolled about its approach, and the side axis of each roll.
         turned = (
@@ -542,10 +553,12 @@ def _robust_quality(
             continue
         lines = (origins[mine], approaches[mine], closings[mine])
         neighbours = _neighbours(*lines, settings.pad_size)
-        near = evaluate_lines(model, *neighbours, settings, view, pool=pool)
         if settings.finger_length > 0.0:
+            # The hand's score asks only whether each neighbour holds.
+            near = evaluate_lines(model, *neighbours, settings, view, valid_only=True, pool=pool)
             total[mine] = _hand_quality(model, *lines, rows[mine], near, settings.pad_size, view)
             continue
+        near = evaluate_lines(model, *neighbours, settings, view, pool=pool)
         quality = np.concatenate([rows[mine, COL_QUALITY], near[:, COL_QUALITY]])
         held = quality.reshape(5, len(mine)).mean(axis=0)
         centring = _centring(model, *lines, rows[mine])
@@ -619,10 +632,21 @@ def _hand_quality(
     return 1.0 / (1.0 + np.exp(-(z - HAND_SCORE_CENTRE)))
 
 
+#: Each model's centroid and reach, computed once (a cloud's scoring asks for them many times).
+_CENTRES: weakref.WeakKeyDictionary[SurfaceModel, tuple[FloatArray, float]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
 def _centre_and_reach(model: SurfaceModel) -> tuple[FloatArray, float]:
     """Return the centroid of the model's points and their largest distance from it (> 0)."""
-    centroid = model.points.mean(axis=0)
-    return centroid, max(float(np.linalg.norm(model.points - centroid, axis=1).max()), 1e-12)
+    known = _CENTRES.get(model)
+    if known is not None:
+        return known
+    centroid = read_only(model.points.mean(axis=0))
+    reach = max(float(np.linalg.norm(model.points - centroid, axis=1).max()), 1e-12)
+    _CENTRES[model] = (centroid, reach)
+    return centroid, reach
 
 
 def _centring(

@@ -113,8 +113,9 @@ def _moments(
     points: FloatArray,
     cells: np.ndarray,
     span: np.ndarray,
-    order: np.ndarray,
+    ordered: FloatArray,
     sorted_keys: np.ndarray,
+    starts: np.ndarray,
     i: int,
     reach: int,
     radius: float,
@@ -122,9 +123,12 @@ def _moments(
     """
     Return the count, sums and second-moment sums of the offsets within `radius` of point i.
 
-    Every point of the cells is added, weighted 1 inside the radius and 0 outside: whether a
-    point is inside comes in short runs, and a branch on it mispredicted (the sums are the same
-    bit for bit: adding a zero to a sum that is never -0 changes nothing).
+    `ordered` are the points in the order of `sorted_keys` (a cell's points one after the
+    other in memory); `starts` the first place of each cell key in it (:func:`_key_starts`), or
+    empty (then a binary search finds it). Every point of the cells is added, weighted 1 inside
+    the radius and 0 outside: whether a point is inside comes in short runs, and a branch on it
+    mispredicted (the sums are the same bit for bit: adding a zero to a sum that is never -0
+    changes nothing).
     """
     squared = radius * radius
     n = 0
@@ -135,15 +139,18 @@ def _moments(
     for dx in range(-reach, reach + 1):
         for dy in range(-reach, reach + 1):
             first, last = column_keys(cells[i, 0] + dx, cells[i, 1] + dy, cells[i, 2], reach, span)
-            start = cell_start(sorted_keys, first)
-            end = start
-            while end < count and sorted_keys[end] <= last:
-                end += 1
+            if starts.shape[0]:
+                start = starts[first]
+                end = starts[last + 1]
+            else:
+                start = cell_start(sorted_keys, first)
+                end = start
+                while end < count and sorted_keys[end] <= last:
+                    end += 1
             for k in range(start, end):
-                j = order[k]
-                x = points[j, 0] - px
-                y = points[j, 1] - py
-                z = points[j, 2] - pz
+                x = ordered[k, 0] - px
+                y = ordered[k, 1] - py
+                z = ordered[k, 2] - pz
                 inside = x * x + y * y + z * z <= squared
                 weight = 1.0 if inside else 0.0
                 n += 1 if inside else 0
@@ -183,6 +190,24 @@ def _covariance_eigen(
     return nx, ny, nz, smallest / trace if trace > 0.0 else 0.0
 
 
+#: The most cells of a grid whose keys' first places :func:`_pca_normals` lists (8 bytes each);
+#: larger grids look each cell up by a binary search in the sorted keys.
+MAX_LISTED_CELLS = 2_000_000
+
+
+@nb.njit(cache=True, nogil=True)
+def _key_starts(sorted_keys: np.ndarray, cells: int) -> np.ndarray:
+    """Return, for each key 0 .. `cells`, the first place in `sorted_keys` not below it."""
+    starts = np.empty(cells + 1, dtype=np.int64)
+    place = 0
+    count = sorted_keys.shape[0]
+    for key in range(cells + 1):
+        while place < count and sorted_keys[place] < key:
+            place += 1
+        starts[key] = place
+    return starts
+
+
 @nb.njit('float64[:, :](float64[:, :], float64)', cache=True, nogil=True)
 def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     """
@@ -200,14 +225,25 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
     if count == 0:
         return normals
     cells, span, order, sorted_keys = cell_grid(points, radius, MAX_REACH)
+    ordered = np.empty((count, 3))
+    for k in range(count):
+        for axis in range(3):
+            ordered[k, axis] = points[order[k], axis]
+    # Each cell's first place: a look-up instead of a binary search (the same places).
+    grid_cells = span[0] * span[1] * span[2]
+    starts = np.empty(0, dtype=np.int64)
+    if grid_cells <= MAX_LISTED_CELLS:
+        starts = _key_starts(sorted_keys, grid_cells)
     for i in range(count):
         reach = 1
-        moments = _moments(points, cells, span, order, sorted_keys, i, reach, radius)
+        moments = _moments(points, cells, span, ordered, sorted_keys, starts, i, reach, radius)
         for wider_reach in (2, MAX_REACH):
             if moments[0] >= MIN_NEIGHBOURS:
                 break
             reach = wider_reach
-            moments = _moments(points, cells, span, order, sorted_keys, i, reach, reach * radius)
+            moments = _moments(
+                points, cells, span, ordered, sorted_keys, starts, i, reach, reach * radius
+            )
         if moments[0] < 4:
             continue
         nx, ny, nz, variation = _covariance_eigen(*moments)
@@ -215,7 +251,9 @@ def _pca_normals(points: FloatArray, radius: float) -> FloatArray:
             if reach == MAX_REACH:  # no wider neighbourhood to ask: the same answer
                 continue
             wide = min(2 * reach, MAX_REACH)
-            wider = _moments(points, cells, span, order, sorted_keys, i, wide, wide * radius)
+            wider = _moments(
+                points, cells, span, ordered, sorted_keys, starts, i, wide, wide * radius
+            )
             if _covariance_eigen(*wider)[3] > EDGE_VARIATION:
                 continue
         normals[i, 0] = nx

@@ -72,6 +72,37 @@ def test_normals_are_the_pca_of_every_neighbour_within_the_radius(count, seed, r
     assert np.all(agreement > 1.0 - 1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 60), max_size=80), st.integers(0, 20))
+def test_key_starts_are_the_binary_searches_they_replace(keys, extra):
+    """Each key's listed first place is cell_start's (and the places past the last key)."""
+    from mvbb_ros.geometry.views.cells import cell_start
+
+    sorted_keys = np.sort(np.array(keys, dtype=np.int64))
+    cells = (max(keys) + 1 if keys else 0) + extra
+    starts = surface._key_starts(sorted_keys, cells)
+    assert starts.tolist() == [cell_start(sorted_keys, key) for key in range(cells + 1)]
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(1, 300), st.integers(0, 2**31 - 1), st.floats(0.004, 0.03))
+def test_moments_with_listed_cells_are_the_searched_ones_bit_for_bit(count, seed, radius):
+    """The cells' listed first places give the same sums as the binary search, every reach."""
+    from mvbb_ros.geometry.views.cells import cell_grid
+
+    points = _wavy_sheet(count, seed)
+    cells, span, order, sorted_keys = cell_grid(points, radius, surface.MAX_REACH)
+    ordered = np.ascontiguousarray(points[order])
+    starts = surface._key_starts(sorted_keys, int(np.prod(span)))
+    none = np.zeros(0, dtype=np.int64)
+    for i in range(count):
+        for reach in (1, 2, surface.MAX_REACH):
+            args = (points, cells, span, ordered, sorted_keys)
+            listed = surface._moments(*args, starts, i, reach, reach * radius)
+            searched = surface._moments(*args, none, i, reach, reach * radius)
+            assert np.array(listed).tobytes() == np.array(searched).tobytes()
+
+
 def _surface_cells_by_ndimage(points: np.ndarray, cell: float, seen: int):
     """Return surface._surface_cells' answer with scipy.ndimage's closing and erosion."""
     from scipy import ndimage
@@ -247,6 +278,41 @@ def test_the_hand_placed_on_the_band_near_the_first_contact_is_the_one_on_the_wh
     np.testing.assert_array_equal(
         rows[1], evaluate_lines(model, origins, approaches, closings, ON, view)
     )
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.integers(0, 2**31 - 1),
+    st.booleans(),
+    st.booleans(),
+    st.sampled_from(['', 'lenient', 'held']),
+)
+def test_lines_asked_only_whether_they_hold_say_what_the_whole_evaluation_says(
+    seed, up, hand, mode
+):
+    """valid_only stops a line at its first depth that holds: the same COL_VALID as without."""
+    from mvbb_ros.pipeline.settings import PipelineSettings
+
+    rng = np.random.default_rng(seed)
+    rotation = Rotation.random(random_state=seed).as_matrix()
+    points = l_shape_points(seed, count=3000) @ rotation.T
+    model = surface.surface_model(points, cell=0.005, up=(0.0, 0.0, 1.0) if up else None)
+    axis = rng.integers(0, 3, 200)
+    approaches = rotation[:, axis].T * rng.choice([-1.0, 1.0], (200, 1))
+    closings = rotation[:, (axis + rng.integers(1, 3, 200)) % 3].T
+    tilt = Rotation.from_rotvec(rng.normal(scale=0.15, size=(200, 3)))
+    approaches, closings = tilt.apply(approaches), tilt.apply(closings)
+    origins = points[rng.integers(0, len(points), 200)] - 0.1 * approaches
+    view = GraspView(
+        gripper_max_width=0.08, standoff=0.05, up=np.array([0.0, 0.0, 1.0]) if up else None
+    )
+    refinement = PipelineSettings().refinement if hand else ON
+    options = {'lenient': mode == 'lenient', 'held': mode == 'held'}
+    lines = (model, origins, approaches, closings, refinement, view)
+    whole = evaluate_lines(*lines, **options)
+    asked = evaluate_lines(*lines, valid_only=True, **options)
+    assert np.array_equal(asked[:, COL_VALID], whole[:, COL_VALID])
+    assert whole[:, COL_VALID].any(), 'some lines hold'
 
 
 @settings(max_examples=25, deadline=None)
