@@ -519,8 +519,8 @@ def _ascending(best: IndexArray) -> IndexArray:
     return kept
 
 
-@nb.njit('int64[:](float64[:, :], float64)', cache=True, nogil=True)
-def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
+@nb.njit('int64[:](float64[:, :], boolean[:], float64)', cache=True, nogil=True)
+def _one_per_cell(points: FloatArray, keep: BoolArray, cell: float) -> IndexArray:
     """
     Return the indices of one point per occupied cubic cell `cell` wide (sorted).
 
@@ -528,22 +528,31 @@ def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     per cell keeps its shape (the decomposition only needs its bounds and a fair count) at a
     fraction of the points. The point kept is the cell's lowest in x, then y, then z, so the
     choice does not depend on the order of the points. The cells are coarser when that would
-    make more than :data:`MAX_SOLID_SIDE` cells along a side.
+    make more than :data:`MAX_SOLID_SIDE` cells along a side. Only the points with `keep` set
+    take part (the cells are those of the kept points alone); the indices are into `points`.
     """
-    count = points.shape[0]
+    count = 0
+    low = np.full(3, np.inf)
+    high = np.full(3, -np.inf)
+    for i in range(points.shape[0]):
+        if keep[i]:
+            count += 1
+            for axis in range(3):
+                low[axis] = min(low[axis], points[i, axis])
+                high[axis] = max(high[axis], points[i, axis])
     if count == 0:
         return np.zeros(0, dtype=np.int64)
-    low = np.empty(3)
     widest = 0.0
     for axis in range(3):
-        low[axis] = points[:, axis].min()
-        widest = max(widest, points[:, axis].max() - low[axis])
+        widest = max(widest, high[axis] - low[axis])
     cell = max(cell, widest / MAX_SOLID_SIDE)
     span = np.empty(3, dtype=np.int64)
     for axis in range(3):
-        span[axis] = int((points[:, axis].max() - low[axis]) / cell) + 1
+        span[axis] = int((high[axis] - low[axis]) / cell) + 1
     best = np.full(span[0] * span[1] * span[2], -1, dtype=np.int64)
-    for i in range(count):
+    for i in range(points.shape[0]):
+        if not keep[i]:
+            continue
         key = 0
         for axis in range(3):
             key = key * span[axis] + int((points[i, axis] - low[axis]) / cell)
@@ -717,7 +726,8 @@ def complete_view(
         # One flat face seen gives no depth behind it, and a mirror about a vertical plane
         # would stand a leaning plate up as a tent: a plate keeps its own box.
         estimated = fill_to_box(pts, eye, box, spacing)
-        estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
+        every = np.ones(len(estimated), dtype=np.bool_)
+        estimated = estimated[_one_per_cell(estimated, every, SOLID_CELLS * spacing)]
         return CompletedView(np.concatenate([pts, estimated]), len(pts), method)
     unit_up = None
     if up is not None:
@@ -751,8 +761,11 @@ def complete_view(
         parts.append(fill_down(np.concatenate(parts), unit_up, lowest, spacing))
     estimated = np.concatenate(parts[1:])
     if unit_up is not None and floor is not None:
-        estimated = estimated[estimated @ unit_up >= floor]
-    estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
+        keep = estimated @ unit_up >= floor
+    else:
+        keep = np.ones(len(estimated), dtype=np.bool_)
+    # The cells of the kept points only, their indices into `estimated`: one copy, not two.
+    estimated = estimated[_one_per_cell(estimated, keep, SOLID_CELLS * spacing)]
     return CompletedView(np.concatenate([pts, estimated]), len(pts), method, plane)
 
 
