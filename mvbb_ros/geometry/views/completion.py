@@ -58,7 +58,6 @@ from mvbb_ros.geometry.views.raster import (
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
 #: How the hidden side is estimated (the ``shape_completion`` setting); see the module doc.
 Completion = Literal['none', 'mirror', 'extrude']
@@ -447,9 +446,16 @@ def _completion_size(
     if up is None:
         local = both @ np.asarray(axes).T
         return float(np.prod(column_span(local)))
-    first, second = perpendicular_axes(up)
+    first, second = _perpendicular_axes(*up.tolist())
     flat = np.column_stack([both @ first, both @ second])
     return _hull_area(flat)
+
+
+@functools.lru_cache(maxsize=8)
+def _perpendicular_axes(x: float, y: float, z: float) -> tuple[FloatArray, FloatArray]:
+    """Return :func:`perpendicular_axes` of (x, y, z) (read-only; one object's up, asked often)."""
+    first, second = perpendicular_axes(np.array([x, y, z]))
+    return read_only(first), read_only(second)
 
 
 def _hull_area(points: FloatArray) -> float:
@@ -588,14 +594,52 @@ def fill_to_far_side(
     """
     cells, ranges = raster.locate(points)
     far_cells, far_ranges = raster.locate(far)
-    inside = far_cells[:, 0] >= 0
-    deepest = np.full(raster.mask.shape, -np.inf)
-    np.maximum.at(deepest, (far_cells[inside, 0], far_cells[inside, 1]), far_ranges[inside])
-    deepest = np.where(np.isfinite(deepest), deepest, ndimage.maximum_filter(deepest, size=3))
-    seen = cells[:, 0] >= 0
-    exits = np.where(seen, deepest[np.maximum(cells[:, 0], 0), np.maximum(cells[:, 1], 0)], 0.0)
+    rows, cols = raster.mask.shape
+    lengths = _far_side_lengths(cells, ranges, far_cells, far_ranges, rows, cols)
     directions, _ = _rays(points, raster.viewpoint)
-    return _samples(points, directions, np.maximum(exits - ranges, 0.0), step)
+    return _samples(points, directions, lengths, step)
+
+
+@nb.njit(
+    'float64[:](int64[:, :], float64[:], int64[:, :], float64[:], int64, int64)',
+    cache=True,
+    nogil=True,
+)
+def _far_side_lengths(
+    cells: IndexArray,
+    ranges: FloatArray,
+    far_cells: IndexArray,
+    far_ranges: FloatArray,
+    rows: int,
+    cols: int,
+) -> FloatArray:
+    """
+    Return how far each ray runs past its point to the far side (0 outside the raster).
+
+    The deepest far-side range per raster cell, in cells without one the deepest of the 3 x 3
+    cells around (-inf when none: no length), less the point's range, at least 0. Maxima only:
+    the values of the numpy steps this replaced (``np.maximum.at``, a 3 x 3 maximum filter,
+    whose reflected border adds no other value).
+    """
+    deepest = np.full((rows, cols), -np.inf)
+    for i in range(far_cells.shape[0]):
+        row = far_cells[i, 0]
+        if row >= 0:
+            col = far_cells[i, 1]
+            deepest[row, col] = max(deepest[row, col], far_ranges[i])
+    lengths = np.empty(cells.shape[0])
+    for i in range(cells.shape[0]):
+        row, col = cells[i, 0], cells[i, 1]
+        exit = 0.0
+        if row >= 0:
+            exit = deepest[row, col]
+            if exit == -np.inf:
+                for a in range(max(row - 1, 0), min(row + 2, rows)):
+                    for b in range(max(col - 1, 0), min(col + 2, cols)):
+                        exit = max(exit, deepest[a, b])
+        length = exit - ranges[i]
+        lengths[i] = length if length > 0.0 else 0.0
+    return lengths
 
 
 def fill_to_box(points: FloatArray, viewpoint: FloatArray, box: Box, step: float) -> FloatArray:
@@ -639,7 +683,7 @@ def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) ->
     more than :data:`MAX_RASTER_SIDE` columns along a side); each column's highest point is the
     top of a column of samples every `step` (the object stands on something below it).
     """
-    first, second = perpendicular_axes(up)
+    first, second = _perpendicular_axes(*up.tolist())
     across, along, height = points @ first, points @ second, points @ up
     widest = max(float(np.ptp(across)), float(np.ptp(along)))
     tops = _column_tops(across, along, height, max(step, widest / MAX_RASTER_SIDE))

@@ -307,19 +307,21 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
     axis /= length
     side, second = perpendicular_axes(axis)
     frame = np.stack([side, second, axis])
-    relative = (pts - eye) @ frame.T
+    offsets = pts - eye
+    relative = offsets @ frame.T
     ahead = relative[:, 2] > 0.0
     if not np.any(ahead):
         raise ValueError('no point lies in front of the viewpoint')
     tangent = relative[ahead, :2] / relative[ahead, 2:3]
-    distance = float(np.median(np.linalg.norm(pts - eye, axis=1)))
+    distances = np.linalg.norm(offsets, axis=1)
+    distance = float(np.median(distances))
     widest = float(np.max(column_span(tangent)))
     cell = max(CELLS_PER_SPACING * spacing / distance, widest / MAX_RASTER_SIDE)
     # Room around the outline for the band a surface seen too obliquely may hide: its reach
     # across the rays for a depth of twice the object's size (a mirror image lies at most that
     # far behind the nearest point).
     size = float(np.max(column_span(pts)))
-    nearest = float(np.min(np.linalg.norm(pts - eye, axis=1)))
+    nearest = float(np.min(distances))
     reach = GRAZING_SLOPE * 2.0 * size / (max(nearest, 1e-9) * cell)
     margin = max(4, min(MAX_GRAZING_CELLS, math.ceil(reach)))
     origin = column_min(tangent) - margin * cell
