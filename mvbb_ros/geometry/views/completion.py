@@ -796,8 +796,9 @@ def complete_view(
         # seen surface run wider than it, into the box's slack (a 3 cm plate seen end-on from
         # 0.5 m came out 1 cm thicker, 1.7 times its volume). The slack stays along the normal
         # and up, where the far side and the bottom are estimates that tend to fall short.
-        across = fill @ cross(unit_up, plane.normal)
-        width = both @ cross(unit_up, plane.normal)
+        side = cross(unit_up, plane.normal)
+        across = fill @ side
+        width = both @ side
         fill = fill[(across >= width.min()) & (across <= width.max())]
     parts = [both, fill]
     if unit_up is not None:

@@ -128,6 +128,12 @@ def _oblique_ranges(
     """
     rows, cols = mask.shape
     out = np.full((rows, cols), np.inf)
+    # The share of the reach per offset (a, b) - (i, j): the same expression, once per offset.
+    width = 2 * radius + 1
+    shares = np.empty((width, width))
+    for da in range(-radius, radius + 1):
+        for db in range(-radius, radius + 1):
+            shares[da + radius, db + radius] = math.sqrt(float(da**2 + db**2)) * cell / slope
     for i in range(rows):
         for j in range(cols):
             if not mask[i, j] or not near[i, j] < np.inf:
@@ -142,7 +148,7 @@ def _oblique_ranges(
                 for b in range(max(j - radius, 0), min(j + radius + 1, cols)):
                     if mask[a, b]:
                         continue
-                    share = math.sqrt(float((a - i) ** 2 + (b - j) ** 2)) * cell / slope
+                    share = shares[a - i + radius, b - j + radius]
                     if share < 1.0:
                         out[a, b] = min(out[a, b], near[i, j] / (1.0 - share))
     return out

@@ -361,3 +361,27 @@ def test_the_points_behind_others_are_those_of_the_numpy_steps(rows, cols, count
     ranges = np.round(rng.uniform(0.3, 1.0, count), 2)  # equal ranges in a cell
     expected = _behind_reference(cells, ranges, cols, gap)
     np.testing.assert_array_equal(_behind(cells, ranges, rows, cols, gap), expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 20), st.integers(1, 20), st.integers(0, 6), st.integers(0, 2**31 - 1))
+def test_the_oblique_ranges_are_those_of_the_formula_per_cell(rows, cols, radius, seed):
+    """The compiled band (its shares tabulated per offset) is the formula taken cell by cell."""
+    from mvbb_ros.geometry.views.raster import _oblique_ranges, GRAZING_SLOPE
+
+    rng = np.random.default_rng(seed)
+    mask = rng.random((rows, cols)) < 0.5
+    near = np.where(rng.random((rows, cols)) < 0.9, rng.uniform(0.3, 2.0, (rows, cols)), np.inf)
+    cell = float(rng.uniform(0.002, 0.05))
+    expected = np.full((rows, cols), np.inf)
+    for i, j in np.argwhere(mask & (near < np.inf)).tolist():
+        neighbours = [(i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)]
+        if all(0 <= a < rows and 0 <= b < cols and mask[a, b] for a, b in neighbours):
+            continue
+        for a in range(max(i - radius, 0), min(i + radius + 1, rows)):
+            for b in range(max(j - radius, 0), min(j + radius + 1, cols)):
+                share = math.sqrt(float((a - i) ** 2 + (b - j) ** 2)) * cell / GRAZING_SLOPE
+                if not mask[a, b] and share < 1.0:
+                    expected[a, b] = min(expected[a, b], near[i, j] / (1.0 - share))
+    found = _oblique_ranges(mask, near, cell, GRAZING_SLOPE, radius)
+    assert found.tobytes() == expected.tobytes()
