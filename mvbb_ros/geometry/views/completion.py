@@ -143,28 +143,32 @@ def _mirror_violations(
     rows, cols = mask.shape
     count = sample.shape[0]
     out = np.zeros((normals.shape[0], offsets.shape[1]))
+    along = np.empty(count)  # each sample's height above the normal's plane through `center`
     for k in range(normals.shape[0]):
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        for i in range(count):
+            along[i] = (
+                (sample[i, 0] - center[0]) * n0
+                + (sample[i, 1] - center[1]) * n1
+                + (sample[i, 2] - center[2]) * n2
+            )
         least = count + 1
         for j in order:
             bad = 0
+            offset = offsets[k, j]
             for i in range(count):
                 if bad > least:
                     break
-                height = (
-                    (sample[i, 0] - center[0]) * n0
-                    + (sample[i, 1] - center[1]) * n1
-                    + (sample[i, 2] - center[2]) * n2
-                    - offsets[k, j]
-                )
+                height = along[i] - offset
                 x = sample[i, 0] - 2.0 * height * n0 - viewpoint[0]
                 y = sample[i, 1] - 2.0 * height * n1 - viewpoint[1]
                 z = sample[i, 2] - 2.0 * height * n2 - viewpoint[2]
                 row, col = pixel(x, y, z, frame, origin, cell)
-                distance = math.sqrt(x * x + y * y + z * z)
                 if row < 0 or col < 0 or row >= rows or col >= cols:
                     bad += 1
-                elif not mask[row, col]:
+                    continue
+                distance = math.sqrt(x * x + y * y + z * z)
+                if not mask[row, col]:
                     if distance < oblique[row, col]:
                         bad += 1
                 elif distance < near[row, col] - tolerance:
