@@ -178,6 +178,27 @@ def _mirror_violations(
     return out
 
 
+@nb.njit('Tuple((float64[:], float64[:]))(float64[:, :])', cache=True, nogil=True)
+def _column_bounds(values: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """
+    Return each column's minimum and maximum of an (N, K) array, N >= 1, in one pass.
+
+    numpy's ``min(axis=0)`` and ``max(axis=0)`` take two passes of K values a row; the same
+    values (no NaN: an extreme does not depend on the order it is taken in; only which of a
+    0.0 and a -0.0 tied for one is kept might, and the plane positions add to it).
+    """
+    low = values[0].copy()
+    high = values[0].copy()
+    for i in range(1, values.shape[0]):
+        for k in range(values.shape[1]):
+            value = values[i, k]
+            if value < low[k]:
+                low[k] = value
+            if value > high[k]:
+                high[k] = value
+    return low, high
+
+
 def _middle_out(count: int) -> IndexArray:
     """Return 0 .. count - 1 from the middle outwards (the middle, one below, one above, ...)."""
     middle = (count - 1) // 2
@@ -374,11 +395,10 @@ def find_mirror_plane(
     view = center - raster.viewpoint
     view /= np.linalg.norm(view)
     normals, preferred, fan = _candidate_normals(view, up, np.asarray(axes, dtype=np.float64))
-    heights = (points - center) @ normals.T
-    nearest = heights.min(axis=0)
+    nearest, farthest = _column_bounds((points - center) @ normals.T)
     size = float(np.max(column_span(points)))
     steps = np.linspace(0.0, 1.0, MIRROR_OFFSETS)
-    planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
+    planes = nearest[:, None] + steps[None, :] * (farthest - nearest + size)[:, None]
 
     def refuted(offsets: FloatArray) -> FloatArray:
         return plane_violations(sample, center, normals, offsets, raster, spacing, pool=pool)

@@ -385,3 +385,15 @@ def test_the_oblique_ranges_are_those_of_the_formula_per_cell(rows, cols, radius
                     expected[a, b] = min(expected[a, b], near[i, j] / (1.0 - share))
     found = _oblique_ranges(mask, near, cell, GRAZING_SLOPE, radius)
     assert found.tobytes() == expected.tobytes()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 300), st.integers(1, 50), st.integers(0, 2**31 - 1))
+def test_the_column_bounds_are_numpys_minimum_and_maximum(rows, cols, seed):
+    """One pass gives numpy's column minima and maxima (ties included)."""
+    from mvbb_ros.geometry.views.completion import _column_bounds
+
+    values = np.round(np.random.default_rng(seed).normal(size=(rows, cols)), 1)
+    low, high = _column_bounds(values)
+    assert low.tobytes() == values.min(axis=0).tobytes()
+    assert high.tobytes() == values.max(axis=0).tobytes()
