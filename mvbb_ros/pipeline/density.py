@@ -39,8 +39,8 @@ def largest_extent(points: FloatArray) -> float:
         return 0.0
     centred = points - points.mean(axis=0)
     _, _, axes = np.linalg.svd(centred, full_matrices=False)
-    spans = (centred @ axes.T).max(axis=0) - (centred @ axes.T).min(axis=0)
-    return float(spans.max())
+    along = centred @ axes.T
+    return float(np.max(column_max(along) - column_min(along)))
 
 
 def object_voxel_size(

@@ -58,7 +58,6 @@ from mvbb_ros.geometry.views.raster import (
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
 #: How the hidden side is estimated (the ``shape_completion`` setting); see the module doc.
 Completion = Literal['none', 'mirror', 'extrude']
@@ -144,28 +143,32 @@ def _mirror_violations(
     rows, cols = mask.shape
     count = sample.shape[0]
     out = np.zeros((normals.shape[0], offsets.shape[1]))
+    along = np.empty(count)  # each sample's height above the normal's plane through `center`
     for k in range(normals.shape[0]):
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        for i in range(count):
+            along[i] = (
+                (sample[i, 0] - center[0]) * n0
+                + (sample[i, 1] - center[1]) * n1
+                + (sample[i, 2] - center[2]) * n2
+            )
         least = count + 1
         for j in order:
             bad = 0
+            offset = offsets[k, j]
             for i in range(count):
                 if bad > least:
                     break
-                height = (
-                    (sample[i, 0] - center[0]) * n0
-                    + (sample[i, 1] - center[1]) * n1
-                    + (sample[i, 2] - center[2]) * n2
-                    - offsets[k, j]
-                )
+                height = along[i] - offset
                 x = sample[i, 0] - 2.0 * height * n0 - viewpoint[0]
                 y = sample[i, 1] - 2.0 * height * n1 - viewpoint[1]
                 z = sample[i, 2] - 2.0 * height * n2 - viewpoint[2]
                 row, col = pixel(x, y, z, frame, origin, cell)
-                distance = math.sqrt(x * x + y * y + z * z)
                 if row < 0 or col < 0 or row >= rows or col >= cols:
                     bad += 1
-                elif not mask[row, col]:
+                    continue
+                distance = math.sqrt(x * x + y * y + z * z)
+                if not mask[row, col]:
                     if distance < oblique[row, col]:
                         bad += 1
                 elif distance < near[row, col] - tolerance:
@@ -173,6 +176,27 @@ def _mirror_violations(
             out[k, j] = bad / count
             least = min(least, bad)
     return out
+
+
+@nb.njit('Tuple((float64[:], float64[:]))(float64[:, :])', cache=True, nogil=True)
+def _column_bounds(values: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """
+    Return each column's minimum and maximum of an (N, K) array, N >= 1, in one pass.
+
+    numpy's ``min(axis=0)`` and ``max(axis=0)`` take two passes of K values a row; the same
+    values (no NaN: an extreme does not depend on the order it is taken in; only which of a
+    0.0 and a -0.0 tied for one is kept might, and the plane positions add to it).
+    """
+    low = values[0].copy()
+    high = values[0].copy()
+    for i in range(1, values.shape[0]):
+        for k in range(values.shape[1]):
+            value = values[i, k]
+            if value < low[k]:
+                low[k] = value
+            if value > high[k]:
+                high[k] = value
+    return low, high
 
 
 def _middle_out(count: int) -> IndexArray:
@@ -371,11 +395,10 @@ def find_mirror_plane(
     view = center - raster.viewpoint
     view /= np.linalg.norm(view)
     normals, preferred, fan = _candidate_normals(view, up, np.asarray(axes, dtype=np.float64))
-    heights = (points - center) @ normals.T
-    nearest = heights.min(axis=0)
+    nearest, farthest = _column_bounds((points - center) @ normals.T)
     size = float(np.max(column_span(points)))
     steps = np.linspace(0.0, 1.0, MIRROR_OFFSETS)
-    planes = nearest[:, None] + steps[None, :] * (heights.max(axis=0) - nearest + size)[:, None]
+    planes = nearest[:, None] + steps[None, :] * (farthest - nearest + size)[:, None]
 
     def refuted(offsets: FloatArray) -> FloatArray:
         return plane_violations(sample, center, normals, offsets, raster, spacing, pool=pool)
@@ -447,9 +470,16 @@ def _completion_size(
     if up is None:
         local = both @ np.asarray(axes).T
         return float(np.prod(column_span(local)))
-    first, second = perpendicular_axes(up)
+    first, second = _perpendicular_axes(*up.tolist())
     flat = np.column_stack([both @ first, both @ second])
     return _hull_area(flat)
+
+
+@functools.lru_cache(maxsize=8)
+def _perpendicular_axes(x: float, y: float, z: float) -> tuple[FloatArray, FloatArray]:
+    """Return :func:`perpendicular_axes` of (x, y, z) (read-only; one object's up, asked often)."""
+    first, second = perpendicular_axes(np.array([x, y, z]))
+    return read_only(first), read_only(second)
 
 
 def _hull_area(points: FloatArray) -> float:
@@ -519,8 +549,8 @@ def _ascending(best: IndexArray) -> IndexArray:
     return kept
 
 
-@nb.njit('int64[:](float64[:, :], float64)', cache=True, nogil=True)
-def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
+@nb.njit('int64[:](float64[:, :], boolean[:], float64)', cache=True, nogil=True)
+def _one_per_cell(points: FloatArray, keep: BoolArray, cell: float) -> IndexArray:
     """
     Return the indices of one point per occupied cubic cell `cell` wide (sorted).
 
@@ -528,22 +558,31 @@ def _one_per_cell(points: FloatArray, cell: float) -> IndexArray:
     per cell keeps its shape (the decomposition only needs its bounds and a fair count) at a
     fraction of the points. The point kept is the cell's lowest in x, then y, then z, so the
     choice does not depend on the order of the points. The cells are coarser when that would
-    make more than :data:`MAX_SOLID_SIDE` cells along a side.
+    make more than :data:`MAX_SOLID_SIDE` cells along a side. Only the points with `keep` set
+    take part (the cells are those of the kept points alone); the indices are into `points`.
     """
-    count = points.shape[0]
+    count = 0
+    low = np.full(3, np.inf)
+    high = np.full(3, -np.inf)
+    for i in range(points.shape[0]):
+        if keep[i]:
+            count += 1
+            for axis in range(3):
+                low[axis] = min(low[axis], points[i, axis])
+                high[axis] = max(high[axis], points[i, axis])
     if count == 0:
         return np.zeros(0, dtype=np.int64)
-    low = np.empty(3)
     widest = 0.0
     for axis in range(3):
-        low[axis] = points[:, axis].min()
-        widest = max(widest, points[:, axis].max() - low[axis])
+        widest = max(widest, high[axis] - low[axis])
     cell = max(cell, widest / MAX_SOLID_SIDE)
     span = np.empty(3, dtype=np.int64)
     for axis in range(3):
-        span[axis] = int((points[:, axis].max() - low[axis]) / cell) + 1
+        span[axis] = int((high[axis] - low[axis]) / cell) + 1
     best = np.full(span[0] * span[1] * span[2], -1, dtype=np.int64)
-    for i in range(count):
+    for i in range(points.shape[0]):
+        if not keep[i]:
+            continue
         key = 0
         for axis in range(3):
             key = key * span[axis] + int((points[i, axis] - low[axis]) / cell)
@@ -579,14 +618,52 @@ def fill_to_far_side(
     """
     cells, ranges = raster.locate(points)
     far_cells, far_ranges = raster.locate(far)
-    inside = far_cells[:, 0] >= 0
-    deepest = np.full(raster.mask.shape, -np.inf)
-    np.maximum.at(deepest, (far_cells[inside, 0], far_cells[inside, 1]), far_ranges[inside])
-    deepest = np.where(np.isfinite(deepest), deepest, ndimage.maximum_filter(deepest, size=3))
-    seen = cells[:, 0] >= 0
-    exits = np.where(seen, deepest[np.maximum(cells[:, 0], 0), np.maximum(cells[:, 1], 0)], 0.0)
+    rows, cols = raster.mask.shape
+    lengths = _far_side_lengths(cells, ranges, far_cells, far_ranges, rows, cols)
     directions, _ = _rays(points, raster.viewpoint)
-    return _samples(points, directions, np.maximum(exits - ranges, 0.0), step)
+    return _samples(points, directions, lengths, step)
+
+
+@nb.njit(
+    'float64[:](int64[:, :], float64[:], int64[:, :], float64[:], int64, int64)',
+    cache=True,
+    nogil=True,
+)
+def _far_side_lengths(
+    cells: IndexArray,
+    ranges: FloatArray,
+    far_cells: IndexArray,
+    far_ranges: FloatArray,
+    rows: int,
+    cols: int,
+) -> FloatArray:
+    """
+    Return how far each ray runs past its point to the far side (0 outside the raster).
+
+    The deepest far-side range per raster cell, in cells without one the deepest of the 3 x 3
+    cells around (-inf when none: no length), less the point's range, at least 0. Maxima only:
+    the values of the numpy steps this replaced (``np.maximum.at``, a 3 x 3 maximum filter,
+    whose reflected border adds no other value).
+    """
+    deepest = np.full((rows, cols), -np.inf)
+    for i in range(far_cells.shape[0]):
+        row = far_cells[i, 0]
+        if row >= 0:
+            col = far_cells[i, 1]
+            deepest[row, col] = max(deepest[row, col], far_ranges[i])
+    lengths = np.empty(cells.shape[0])
+    for i in range(cells.shape[0]):
+        row, col = cells[i, 0], cells[i, 1]
+        exit = 0.0
+        if row >= 0:
+            exit = deepest[row, col]
+            if exit == -np.inf:
+                for a in range(max(row - 1, 0), min(row + 2, rows)):
+                    for b in range(max(col - 1, 0), min(col + 2, cols)):
+                        exit = max(exit, deepest[a, b])
+        length = exit - ranges[i]
+        lengths[i] = length if length > 0.0 else 0.0
+    return lengths
 
 
 def fill_to_box(points: FloatArray, viewpoint: FloatArray, box: Box, step: float) -> FloatArray:
@@ -630,7 +707,7 @@ def fill_down(points: FloatArray, up: FloatArray, lowest: float, step: float) ->
     more than :data:`MAX_RASTER_SIDE` columns along a side); each column's highest point is the
     top of a column of samples every `step` (the object stands on something below it).
     """
-    first, second = perpendicular_axes(up)
+    first, second = _perpendicular_axes(*up.tolist())
     across, along, height = points @ first, points @ second, points @ up
     widest = max(float(np.ptp(across)), float(np.ptp(along)))
     tops = _column_tops(across, along, height, max(step, widest / MAX_RASTER_SIDE))
@@ -717,7 +794,8 @@ def complete_view(
         # One flat face seen gives no depth behind it, and a mirror about a vertical plane
         # would stand a leaning plate up as a tent: a plate keeps its own box.
         estimated = fill_to_box(pts, eye, box, spacing)
-        estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
+        every = np.ones(len(estimated), dtype=np.bool_)
+        estimated = estimated[_one_per_cell(estimated, every, SOLID_CELLS * spacing)]
         return CompletedView(np.concatenate([pts, estimated]), len(pts), method)
     unit_up = None
     if up is not None:
@@ -742,8 +820,9 @@ def complete_view(
         # seen surface run wider than it, into the box's slack (a 3 cm plate seen end-on from
         # 0.5 m came out 1 cm thicker, 1.7 times its volume). The slack stays along the normal
         # and up, where the far side and the bottom are estimates that tend to fall short.
-        across = fill @ cross(unit_up, plane.normal)
-        width = both @ cross(unit_up, plane.normal)
+        side = cross(unit_up, plane.normal)
+        across = fill @ side
+        width = both @ side
         fill = fill[(across >= width.min()) & (across <= width.max())]
     parts = [both, fill]
     if unit_up is not None:
@@ -751,8 +830,11 @@ def complete_view(
         parts.append(fill_down(np.concatenate(parts), unit_up, lowest, spacing))
     estimated = np.concatenate(parts[1:])
     if unit_up is not None and floor is not None:
-        estimated = estimated[estimated @ unit_up >= floor]
-    estimated = estimated[_one_per_cell(estimated, SOLID_CELLS * spacing)]
+        keep = estimated @ unit_up >= floor
+    else:
+        keep = np.ones(len(estimated), dtype=np.bool_)
+    # The cells of the kept points only, their indices into `estimated`: one copy, not two.
+    estimated = estimated[_one_per_cell(estimated, keep, SOLID_CELLS * spacing)]
     return CompletedView(np.concatenate([pts, estimated]), len(pts), method, plane)
 
 

@@ -128,6 +128,12 @@ def _oblique_ranges(
     """
     rows, cols = mask.shape
     out = np.full((rows, cols), np.inf)
+    # The share of the reach per offset (a, b) - (i, j): the same expression, once per offset.
+    width = 2 * radius + 1
+    shares = np.empty((width, width))
+    for da in range(-radius, radius + 1):
+        for db in range(-radius, radius + 1):
+            shares[da + radius, db + radius] = math.sqrt(float(da**2 + db**2)) * cell / slope
     for i in range(rows):
         for j in range(cols):
             if not mask[i, j] or not near[i, j] < np.inf:
@@ -142,7 +148,7 @@ def _oblique_ranges(
                 for b in range(max(j - radius, 0), min(j + radius + 1, cols)):
                     if mask[a, b]:
                         continue
-                    share = math.sqrt(float((a - i) ** 2 + (b - j) ** 2)) * cell / slope
+                    share = shares[a - i + radius, b - j + radius]
                     if share < 1.0:
                         out[a, b] = min(out[a, b], near[i, j] / (1.0 - share))
     return out
@@ -307,19 +313,21 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
     axis /= length
     side, second = perpendicular_axes(axis)
     frame = np.stack([side, second, axis])
-    relative = (pts - eye) @ frame.T
+    offsets = pts - eye
+    relative = offsets @ frame.T
     ahead = relative[:, 2] > 0.0
     if not np.any(ahead):
         raise ValueError('no point lies in front of the viewpoint')
     tangent = relative[ahead, :2] / relative[ahead, 2:3]
-    distance = float(np.median(np.linalg.norm(pts - eye, axis=1)))
+    distances = np.linalg.norm(offsets, axis=1)
+    distance = float(np.median(distances))
     widest = float(np.max(column_span(tangent)))
     cell = max(CELLS_PER_SPACING * spacing / distance, widest / MAX_RASTER_SIDE)
     # Room around the outline for the band a surface seen too obliquely may hide: its reach
     # across the rays for a depth of twice the object's size (a mirror image lies at most that
     # far behind the nearest point).
     size = float(np.max(column_span(pts)))
-    nearest = float(np.min(np.linalg.norm(pts - eye, axis=1)))
+    nearest = float(np.min(distances))
     reach = GRAZING_SLOPE * 2.0 * size / (max(nearest, 1e-9) * cell)
     margin = max(4, min(MAX_GRAZING_CELLS, math.ceil(reach)))
     origin = column_min(tangent) - margin * cell
@@ -341,15 +349,52 @@ def behind_others(points: FloatArray, raster: ViewRaster, gap: float) -> BoolArr
     a wrong viewpoint put several surfaces on one ray.
     """
     cells, ranges = raster.locate(points)
-    flat = cells[:, 0] * raster.mask.shape[1] + cells[:, 1]
-    order = np.lexsort((ranges, flat))
-    flat, ranges = flat[order], ranges[order]
-    same_cell = flat[1:] == flat[:-1]
-    jumps = np.concatenate([[0], np.cumsum(same_cell & (np.diff(ranges) > gap))])
-    starts = np.concatenate([[0], np.flatnonzero(~same_cell) + 1])
-    first_of_cell = np.repeat(starts, np.diff(np.concatenate([starts, [len(flat)]])))
-    behind = np.zeros(len(points), dtype=bool)
-    behind[order] = (jumps - jumps[first_of_cell] > 0) & (flat >= 0)
+    rows, cols = raster.mask.shape
+    return _behind(cells, ranges, rows, cols, gap)
+
+
+@nb.njit('boolean[:](int64[:, :], float64[:], int64, int64, float64)', cache=True, nogil=True)
+def _behind(cells: IndexArray, ranges: FloatArray, rows: int, cols: int, gap: float) -> BoolArray:
+    """
+    Kernel of :func:`behind_others`: per raster cell, the points at or past the first gap.
+
+    A cell's ranges in ascending order (an insertion sort: a cell holds a few points); the first
+    range more than `gap` past the one before it starts the hidden surfaces, and every point of
+    the cell at that range or farther is behind (equal ranges make no gap, so which of them
+    comes first does not matter). Points outside the raster are not behind.
+    """
+    count = cells.shape[0]
+    start = np.zeros(rows * cols + 1, dtype=np.int64)
+    for i in range(count):
+        if cells[i, 0] >= 0:
+            start[cells[i, 0] * cols + cells[i, 1] + 1] += 1
+    for key in range(rows * cols):
+        start[key + 1] += start[key]
+    fill = start[:-1].copy()
+    members = np.empty(start[rows * cols], dtype=np.int64)
+    for i in range(count):
+        if cells[i, 0] >= 0:
+            key = cells[i, 0] * cols + cells[i, 1]
+            members[fill[key]] = i
+            fill[key] += 1
+    behind = np.zeros(count, dtype=np.bool_)
+    ordered = np.empty(members.shape[0])
+    for key in range(rows * cols):
+        first, last = start[key], start[key + 1]
+        if last - first < 2:
+            continue
+        for k in range(first, last):
+            value = ranges[members[k]]
+            at = k
+            while at > first and ordered[at - 1] > value:
+                ordered[at] = ordered[at - 1]
+                at -= 1
+            ordered[at] = value
+        for k in range(first + 1, last):
+            if ordered[k] - ordered[k - 1] > gap:
+                for m in range(first, last):
+                    behind[members[m]] = ranges[members[m]] >= ordered[k]
+                break
     return behind
 
 

@@ -256,3 +256,144 @@ def test_a_leaning_board_seen_from_the_front_stays_a_board(lean_deg, with_up):
     solid = minimum_bounding_box(done.points)
     assert solid.volume <= 1.5 * seen.volume, 'the solid is the board, not a tent behind it'
     assert len(done.points) > done.observed, 'its back is estimated: its own box'
+
+
+def _one_per_cell_reference(points: np.ndarray, cell: float) -> np.ndarray:
+    """The cells' points as the dense-grid kernel before the `keep` mask chose them."""
+    from mvbb_ros.geometry.views.completion import MAX_SOLID_SIDE
+
+    if not len(points):
+        return np.zeros(0, dtype=np.int64)
+    low, high = points.min(axis=0), points.max(axis=0)
+    cell = max(cell, float(np.max(high - low)) / MAX_SOLID_SIDE)
+    span = ((high - low) / cell).astype(np.int64) + 1
+    best: dict[int, int] = {}
+    for i, point in enumerate(points):
+        key = 0
+        for axis in range(3):
+            key = key * int(span[axis]) + int((point[axis] - low[axis]) / cell)
+        other = best.get(key)
+        if other is None or tuple(point) < tuple(points[other]):
+            best[key] = i
+    return np.array(sorted(best.values()), dtype=np.int64)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 400), st.floats(0.001, 0.05), st.integers(0, 2**31 - 1))
+def test_one_point_per_cell_among_the_kept_points_is_that_of_the_kept_points_alone(
+    count, cell, seed
+):
+    """With a `keep` mask: the kept points' own cells, indices into all the points."""
+    from mvbb_ros.geometry.views.completion import _one_per_cell
+
+    rng = np.random.default_rng(seed)
+    points = np.round(rng.uniform(-0.2, 0.3, (count, 3)), 2)  # ties in x and y, duplicates
+    keep = rng.random(count) < 0.7
+    kept = np.flatnonzero(keep)
+    expected = kept[_one_per_cell_reference(points[kept], cell)]
+    np.testing.assert_array_equal(_one_per_cell(points, keep, cell), expected)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 30),
+    st.integers(1, 30),
+    st.integers(0, 200),
+    st.integers(0, 200),
+    st.integers(0, 2**31 - 1),
+)
+def test_the_far_side_lengths_are_those_of_the_numpy_steps(rows, cols, count, far, seed):
+    """The compiled ray lengths are those of np.maximum.at and scipy's 3 x 3 maximum filter."""
+    from mvbb_ros.geometry.views.completion import _far_side_lengths
+    from scipy import ndimage
+
+    rng = np.random.default_rng(seed)
+
+    def cells(size: int) -> np.ndarray:
+        out = np.column_stack([rng.integers(0, rows, size), rng.integers(0, cols, size)])
+        out[rng.random(size) < 0.15] = -1
+        return out
+
+    near_cells, near_ranges = cells(count), rng.uniform(0.3, 1.0, count)
+    far_cells, far_ranges = cells(far), rng.uniform(0.3, 1.5, far)
+    inside = far_cells[:, 0] >= 0
+    deepest = np.full((rows, cols), -np.inf)
+    np.maximum.at(deepest, (far_cells[inside, 0], far_cells[inside, 1]), far_ranges[inside])
+    deepest = np.where(np.isfinite(deepest), deepest, ndimage.maximum_filter(deepest, size=3))
+    seen = near_cells[:, 0] >= 0
+    exits = np.where(
+        seen, deepest[np.maximum(near_cells[:, 0], 0), np.maximum(near_cells[:, 1], 0)], 0.0
+    )
+    expected = np.maximum(exits - near_ranges, 0.0)
+    found = _far_side_lengths(near_cells, near_ranges, far_cells, far_ranges, rows, cols)
+    assert found.tobytes() == expected.tobytes()
+
+
+def _behind_reference(cells: np.ndarray, ranges: np.ndarray, cols: int, gap: float) -> np.ndarray:
+    """:func:`behind_others` as numpy steps (before its kernel)."""
+    flat = cells[:, 0] * cols + cells[:, 1]
+    order = np.lexsort((ranges, flat))
+    flat, ranges = flat[order], ranges[order]
+    same_cell = flat[1:] == flat[:-1]
+    jumps = np.concatenate([[0], np.cumsum(same_cell & (np.diff(ranges) > gap))])
+    starts = np.concatenate([[0], np.flatnonzero(~same_cell) + 1])
+    first_of_cell = np.repeat(starts, np.diff(np.concatenate([starts, [len(flat)]])))
+    behind = np.zeros(len(flat), dtype=bool)
+    behind[order] = (jumps - jumps[first_of_cell] > 0) & (flat >= 0)
+    return behind
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 12),
+    st.integers(1, 12),
+    st.integers(1, 300),
+    st.floats(0.0, 0.2),
+    st.integers(0, 2**31 - 1),
+)
+def test_the_points_behind_others_are_those_of_the_numpy_steps(rows, cols, count, gap, seed):
+    """The compiled test finds the same points behind another surface (ties in range too)."""
+    from mvbb_ros.geometry.views.raster import _behind
+
+    rng = np.random.default_rng(seed)
+    cells = np.column_stack([rng.integers(0, rows, count), rng.integers(0, cols, count)])
+    cells[rng.random(count) < 0.15] = -1
+    ranges = np.round(rng.uniform(0.3, 1.0, count), 2)  # equal ranges in a cell
+    expected = _behind_reference(cells, ranges, cols, gap)
+    np.testing.assert_array_equal(_behind(cells, ranges, rows, cols, gap), expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 20), st.integers(1, 20), st.integers(0, 6), st.integers(0, 2**31 - 1))
+def test_the_oblique_ranges_are_those_of_the_formula_per_cell(rows, cols, radius, seed):
+    """The compiled band (its shares tabulated per offset) is the formula taken cell by cell."""
+    from mvbb_ros.geometry.views.raster import _oblique_ranges, GRAZING_SLOPE
+
+    rng = np.random.default_rng(seed)
+    mask = rng.random((rows, cols)) < 0.5
+    near = np.where(rng.random((rows, cols)) < 0.9, rng.uniform(0.3, 2.0, (rows, cols)), np.inf)
+    cell = float(rng.uniform(0.002, 0.05))
+    expected = np.full((rows, cols), np.inf)
+    for i, j in np.argwhere(mask & (near < np.inf)).tolist():
+        neighbours = [(i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)]
+        if all(0 <= a < rows and 0 <= b < cols and mask[a, b] for a, b in neighbours):
+            continue
+        for a in range(max(i - radius, 0), min(i + radius + 1, rows)):
+            for b in range(max(j - radius, 0), min(j + radius + 1, cols)):
+                share = math.sqrt(float((a - i) ** 2 + (b - j) ** 2)) * cell / GRAZING_SLOPE
+                if not mask[a, b] and share < 1.0:
+                    expected[a, b] = min(expected[a, b], near[i, j] / (1.0 - share))
+    found = _oblique_ranges(mask, near, cell, GRAZING_SLOPE, radius)
+    assert found.tobytes() == expected.tobytes()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 300), st.integers(1, 50), st.integers(0, 2**31 - 1))
+def test_the_column_bounds_are_numpys_minimum_and_maximum(rows, cols, seed):
+    """One pass gives numpy's column minima and maxima (ties included)."""
+    from mvbb_ros.geometry.views.completion import _column_bounds
+
+    values = np.round(np.random.default_rng(seed).normal(size=(rows, cols)), 1)
+    low, high = _column_bounds(values)
+    assert low.tobytes() == values.min(axis=0).tobytes()
+    assert high.tobytes() == values.max(axis=0).tobytes()
