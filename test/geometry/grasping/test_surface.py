@@ -231,23 +231,29 @@ def test_the_hand_placed_on_the_points_within_reach_is_the_one_placed_on_the_who
     assert placed == whole
 
 
-@settings(max_examples=25, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.floats(0.0, 0.03), st.booleans())
-def test_the_hand_placed_on_the_band_near_the_first_contact_is_the_one_on_the_whole_band(
-    seed, opening_slack, up
-):
-    """The kernel searches the band near the first contact; the result is the whole band's."""
+def _l_shape_lines(seed: int, up: bool):
+    """Return an L's surface model and 200 lines along its box axes, tilted a little."""
     rng = np.random.default_rng(seed)
     rotation = Rotation.random(random_state=seed).as_matrix()
     points = l_shape_points(seed, count=3000) @ rotation.T
     model = surface.surface_model(points, cell=0.005, up=(0.0, 0.0, 1.0) if up else None)
-    # Along the L's box axes, tilted a little: many such lines hold, some do not.
+    # Many such lines hold, some do not.
     axis = rng.integers(0, 3, 200)
     approaches = rotation[:, axis].T * rng.choice([-1.0, 1.0], (200, 1))
     closings = rotation[:, (axis + rng.integers(1, 3, 200)) % 3].T
     tilt = Rotation.from_rotvec(rng.normal(scale=0.15, size=(200, 3)))
     approaches, closings = tilt.apply(approaches), tilt.apply(closings)
     origins = points[rng.integers(0, len(points), 200)] - 0.1 * approaches
+    return model, origins, approaches, closings
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.0, 0.03), st.booleans())
+def test_the_hand_placed_on_the_band_near_the_first_contact_is_the_one_on_the_whole_band(
+    seed, opening_slack, up
+):
+    """The kernel searches the band near the first contact; the result is the whole band's."""
+    model, origins, approaches, closings = _l_shape_lines(seed, up)
     view = GraspView(
         gripper_max_width=0.06 + opening_slack,
         standoff=0.05,
@@ -293,16 +299,7 @@ def test_lines_asked_only_whether_they_hold_say_what_the_whole_evaluation_says(
     """valid_only stops a line at its first depth that holds: the same COL_VALID as without."""
     from mvbb_ros.pipeline.settings import PipelineSettings
 
-    rng = np.random.default_rng(seed)
-    rotation = Rotation.random(random_state=seed).as_matrix()
-    points = l_shape_points(seed, count=3000) @ rotation.T
-    model = surface.surface_model(points, cell=0.005, up=(0.0, 0.0, 1.0) if up else None)
-    axis = rng.integers(0, 3, 200)
-    approaches = rotation[:, axis].T * rng.choice([-1.0, 1.0], (200, 1))
-    closings = rotation[:, (axis + rng.integers(1, 3, 200)) % 3].T
-    tilt = Rotation.from_rotvec(rng.normal(scale=0.15, size=(200, 3)))
-    approaches, closings = tilt.apply(approaches), tilt.apply(closings)
-    origins = points[rng.integers(0, len(points), 200)] - 0.1 * approaches
+    model, origins, approaches, closings = _l_shape_lines(seed, up)
     view = GraspView(
         gripper_max_width=0.08, standoff=0.05, up=np.array([0.0, 0.0, 1.0]) if up else None
     )
