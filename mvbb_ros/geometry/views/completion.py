@@ -654,14 +654,14 @@ def _far_side_lengths(
     lengths = np.empty(cells.shape[0])
     for i in range(cells.shape[0]):
         row, col = cells[i, 0], cells[i, 1]
-        exit = 0.0
+        far_end = 0.0
         if row >= 0:
-            exit = deepest[row, col]
-            if exit == -np.inf:
+            far_end = deepest[row, col]
+            if far_end == -np.inf:
                 for a in range(max(row - 1, 0), min(row + 2, rows)):
                     for b in range(max(col - 1, 0), min(col + 2, cols)):
-                        exit = max(exit, deepest[a, b])
-        length = exit - ranges[i]
+                        far_end = max(far_end, deepest[a, b])
+        length = far_end - ranges[i]
         lengths[i] = length if length > 0.0 else 0.0
     return lengths
 

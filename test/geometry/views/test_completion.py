@@ -259,7 +259,7 @@ def test_a_leaning_board_seen_from_the_front_stays_a_board(lean_deg, with_up):
 
 
 def _one_per_cell_reference(points: np.ndarray, cell: float) -> np.ndarray:
-    """The cells' points as the dense-grid kernel before the `keep` mask chose them."""
+    """Return the cells' points as the dense-grid kernel chose them before the `keep` mask."""
     from mvbb_ros.geometry.views.completion import MAX_SOLID_SIDE
 
     if not len(points):
