@@ -87,6 +87,12 @@ CORESET_MIN_POINTS = 65536
 #: before they are turned, and 24 missed the best basin on 7 of 9,000 varied clouds (up to
 #: 1.034 x the reference; ``docs/performance.md``).
 CANDIDATE_AXES = 48
+#: Distinct candidate boxes that start the polish (``starts``). 12 rather than 8: near-copies of
+#: one basin's box no longer count twice (:data:`~mvbb_ros.geometry.boxfit.search.SAME_START`),
+#: and the twelve distinct smallest reach the basin 8 missed on a 976-point part (1.0215 x the
+#: reference) at no measurable cost, since the polish halves the starts every round
+#: (``docs/performance.md``).
+STARTS = 16
 #: Relative margin (of the box's extent) by which a point may stick out of the box of a
 #: coreset's hull before it joins the hull (:func:`_add_leaks`).
 LEAK_TOLERANCE = 1e-3
@@ -699,7 +705,7 @@ def fit_box(
     sample_size: int = 200,
     grid_size: int = 0,
     candidates: int = CANDIDATE_AXES,
-    starts: int = 8,
+    starts: int = STARTS,
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
@@ -725,8 +731,8 @@ def fit_box(
         uses 3).
     :param candidates: facet normals (ranked by the volume bound), and half as many edge-pair
         normals, whose best box is computed.
-    :param starts: best candidate boxes polished by alternating rotating calipers, halved every
-        round.
+    :param starts: best distinct candidate boxes polished by alternating rotating calipers,
+        halved every round.
     :param max_rounds: most polishing rounds, and most grid searches.
     :param exhaustive: hulls with at most this many facets try every distinct facet normal
         without ranking.
@@ -834,29 +840,13 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: three quarters of the default starts, fewer
-#: candidate axes and edge pairs, a short walk of the first axis only, and parts of 1,000 points
-#: or more hulled on a 12 x 12 grid coreset (re-checked against every point,
-#: :func:`_add_leaks`). Lighter than the default search: a decomposition fits tens of parts a
-#: cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`. The volume over an exhaustive
-#: reference on varied clouds (``benchmarks/boxfit_quality.py``) and the cost are in
-#: ``docs/performance.md``.
-PART_SEARCH: dict[str, int] = {
-    'candidates': 16,
-    'starts': 6,
-    'grid_size': 0,
-    'pair_edges': 6,
-    'coreset_cells': 12,
-    'coreset_min': 1000,
-    'walk_steps': 2,
-    'walk_axes': 1,
-}
+#: The knobs of a decomposition's part fits: the default search, parts of 1,000 points or more
+#: hulled on its 32 x 32 grid coreset (re-checked against every point, :func:`_add_leaks`). The
+#: same search as every other fit: a lighter one missed the best basin on about one part in a
+#: hundred (up to 1.05 x the reference); the volume over an exhaustive reference on varied clouds
+#: (``benchmarks/boxfit_quality.py``) and the cost are in ``docs/performance.md``.
+PART_SEARCH: dict[str, int] = {'coreset_min': 1000}
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
-#: The knobs of parts of fewer than ``PART_SEARCH['coreset_min']`` points, hulled on every
-#: point: their hulls are small, so their search is cheap and can afford the default's starts
-#: and a longer walk of every axis (the part search's misses were mostly such parts).
-SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 4, 'walk_axes': 3}
-_SMALL_PART_KNOBS = _DEFAULT_KNOBS._replace(**SMALL_PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
 #: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
 #: the 11 shared clouds of 16,384 points or more the root volume is median 1.0002 x, at most 1.0068
@@ -868,16 +858,14 @@ def fit_part(points: FloatArray, *, seed: int = 0) -> Box:
     """
     Return the minimum-volume box of a decomposition's part: :data:`PART_SEARCH`, no checks.
 
-    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` (:data:`SMALL_PART_SEARCH`
-    below its ``coreset_min`` points) and without its checks and conversions, for points known
-    to be valid (the parts the decomposition cuts).
+    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` and without its checks and
+    conversions, for points known to be valid (the parts the decomposition cuts).
 
     :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
     :param seed: an integer >= 0 (not checked).
     :return: the box.
     """
-    knobs = _SMALL_PART_KNOBS if points.shape[0] < _PART_KNOBS.coreset_min else _PART_KNOBS
-    return Box.trusted(*_run(points, knobs._replace(seed=seed & (2**63 - 1))))
+    return Box.trusted(*_run(points, _PART_KNOBS._replace(seed=seed & (2**63 - 1))))
 
 
 def minimum_bounding_box(
@@ -887,7 +875,7 @@ def minimum_bounding_box(
     sample_size: int = 200,
     grid_size: int = 0,
     candidates: int = CANDIDATE_AXES,
-    starts: int = 8,
+    starts: int = STARTS,
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,

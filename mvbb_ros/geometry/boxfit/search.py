@@ -18,7 +18,8 @@ hull.
   bound on the volume (the hull's width times the area of its shadow) and thinned to one per
   degree. A candidate whose bound is above the ``starts``-th smallest box turned so far cannot
   start the polish and is not turned.
-* Local improvement (:func:`polish`): the best ``starts`` candidates are turned, in turn, to their
+* Local improvement (:func:`polish`): the best ``starts`` distinct candidate boxes (axes paired
+  within :data:`SAME_START`) are turned, in turn, to their
   best rotation about one of their other axes, keeping the better half every round (successive
   halving); then (``grid_size`` > 0) Barequet and Har-Peled's grid of directions around the best
   frame is searched, and the polish resumes from any better box it finds (:func:`search_kernel`).
@@ -61,6 +62,10 @@ EXACT_SHADOW_FACETS = 96
 #: Relative slack of the volume bounds when they rule out a candidate axis: far above their
 #: rounding (and the hull tolerance's effect on the shadow area, about 1e-11), far below a gain.
 BOUND_SLACK = 1e-6
+#: Two turned boxes whose axes pair up within this angle (radians) are one start of the polish:
+#: the starts are the smallest *distinct* boxes, so that near-copies of one basin's box do not
+#: crowd out another basin.
+SAME_START = math.radians(3.0)
 #: Facets ranked by their volume bound, per candidate axis: the largest by area.
 SHORTLIST = 8
 #: Tilt directions of :func:`walk` around the axis.
@@ -86,6 +91,23 @@ def _ranking(values: np.ndarray, count: int) -> np.ndarray:
     ties = np.arange(count).astype(np.float64)
     sort_xy_kernel(values, ties, order, count)
     return order
+
+
+@nb.njit
+def _same_frame(first: np.ndarray, second: np.ndarray, cos_limit: float) -> bool:
+    """Tell whether every axis of `first` is within the angle of some axis of `second`."""
+    for i in range(3):
+        best = 0.0
+        for j in range(3):
+            dot = abs(
+                first[0, i] * second[0, j]
+                + first[1, i] * second[1, j]
+                + first[2, i] * second[2, j]
+            )
+            best = max(best, dot)
+        if best < cos_limit:
+            return False
+    return True
 
 
 @nb.njit
@@ -743,16 +765,20 @@ def search_kernel(
     )
     count = axes.shape[0]
     kept = max(1, min(starts, count))
-    # Only the `kept` smallest boxes start the polish: an axis whose volume bound is above the
-    # kept-th smallest box so far cannot be one of them, and is not turned (the slack covers
-    # the bound's rounding; the starts are the same as with every axis turned).
-    smallest = np.full(kept, np.inf)
-    volumes = np.full(count, np.inf)
+    # The starts of the polish: the `kept` smallest distinct boxes, kept in a list as the axes
+    # are turned in order. A box the same as one listed (axes paired within SAME_START) replaces
+    # the larger ones it repeats, or is dropped when one listed is no larger. An axis whose
+    # volume bound is above the last of a full list cannot change it, and is not turned (the
+    # slack covers the bound's rounding; the starts are the same as with every axis turned).
+    same = math.cos(SAME_START)
+    listed = np.empty(kept, dtype=np.int64)
+    listed_volumes = np.full(kept, np.inf)
+    filled = 0
     frames = np.empty((count, 3, 3))
     for j in range(count):
-        if bounds[j] * (1.0 - BOUND_SLACK) > smallest[kept - 1]:
+        if filled == kept and bounds[j] * (1.0 - BOUND_SLACK) > listed_volumes[kept - 1]:
             continue
-        volumes[j] = rotate_about(
+        volume = rotate_about(
             vertices,
             normals,
             edges,
@@ -763,18 +789,36 @@ def search_kernel(
             axes[j, 2],
             frames[j],
         )
-        i = kept - 1
-        if volumes[j] < smallest[i]:
-            while i > 0 and smallest[i - 1] > volumes[j]:
-                smallest[i] = smallest[i - 1]
-                i -= 1
-            smallest[i] = volumes[j]
-    order = _ranking(volumes, count)
-    start_frames = np.empty((kept, 3, 3))
-    start_volumes = np.empty(kept)
-    for i in range(kept):
-        copy_frame(frames[order[i]], start_frames[i])
-        start_volumes[i] = volumes[order[i]]
+        if filled == kept and not volume < listed_volumes[kept - 1]:
+            continue
+        repeated = False
+        for s in range(filled):
+            if listed_volumes[s] <= volume and _same_frame(frames[j], frames[listed[s]], same):
+                repeated = True
+                break
+        if repeated:
+            continue
+        left = 0
+        for s in range(filled):
+            if not _same_frame(frames[j], frames[listed[s]], same):
+                listed[left] = listed[s]
+                listed_volumes[left] = listed_volumes[s]
+                left += 1
+        filled = left
+        # Insert after the listed ones no larger (ties keep the axes' order).
+        i = min(filled, kept - 1)
+        while i > 0 and listed_volumes[i - 1] > volume:
+            listed[i] = listed[i - 1]
+            listed_volumes[i] = listed_volumes[i - 1]
+            i -= 1
+        listed[i] = j
+        listed_volumes[i] = volume
+        filled = min(filled + 1, kept)
+    start_frames = np.empty((filled, 3, 3))
+    start_volumes = np.empty(filled)
+    for i in range(filled):
+        copy_frame(frames[listed[i]], start_frames[i])
+        start_volumes[i] = listed_volumes[i]
     volume, frame = polish(
         vertices, normals, edges, edge_facets, work, start_frames, start_volumes, max_rounds
     )

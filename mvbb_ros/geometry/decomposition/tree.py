@@ -622,15 +622,11 @@ def decompose(
     the same as with every fit made (the ``'gain'`` order and rescoring fit every split they
     rank).
 
-    Part fits: the root gets the full default search (:func:`mvbb_ros.geometry.boxfit.fit.fit_box`,
-    hulled on its grid coreset from 16,384 points on:
-    :data:`~mvbb_ros.geometry.boxfit.fit.ROOT_SEARCH`), each part the lighter
-    :data:`mvbb_ros.geometry.boxfit.fit.PART_SEARCH` (half the candidate axes and starts, no grid
-    rounds, parts of 1,000 points or more hulled on a grid coreset). Against the full search on the
-    shared scans and models (``benchmarks/decompose.py --parts``): part volumes median 1.0000 x,
-    99th percentile 1.009 x; box counts move on 1 of 39 clouds at t = 0.90, 2 at 0.94 and 22 at
-    0.98, where a part's volume a fraction of a percent off flips decisions
-    (``docs/performance.md``).
+    Box fits: every box gets the default search (:func:`mvbb_ros.geometry.boxfit.fit.fit_box`),
+    hulled on its grid coreset from 16,384 points on for the root
+    (:data:`~mvbb_ros.geometry.boxfit.fit.ROOT_SEARCH`) and from 1,000 points on for the parts
+    (:data:`~mvbb_ros.geometry.boxfit.fit.PART_SEARCH`); each within 1 % of an exhaustive
+    reference on thousands of varied clouds (``docs/performance.md``).
 
     :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
         and volumes come out in those units. Every criterion is scale-free: theta and Theta*

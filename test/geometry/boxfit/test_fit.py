@@ -19,7 +19,6 @@ from mvbb_ros.geometry.boxfit.fit import (
     fit_part,
     minimum_bounding_box,
     PART_SEARCH,
-    SMALL_PART_SEARCH,
 )
 from mvbb_ros.geometry.boxfit.rectangle import min_area_rectangle
 import numpy as np
@@ -148,17 +147,16 @@ def test_the_box_is_read_only_and_the_plain_arrays_agree():
 
 
 def test_a_part_fit_is_the_fit_with_the_part_search():
-    """fit_part skips the checks only: fit_box's box with PART_SEARCH (or SMALL_PART_SEARCH)."""
+    """fit_part skips the checks only: fit_box's box with PART_SEARCH, on both sides of its coreset."""
     many = np.tile(_cuboid_cloud(2), (3, 1))
     size = PART_SEARCH['coreset_min']
-    for points, knobs in ((many[:size], PART_SEARCH), (many[: size - 1], SMALL_PART_SEARCH)):
+    for points in (many[:size], many[: size - 1]):
         points = np.ascontiguousarray(points)
         part = fit_part(points, seed=3)
-        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **knobs), strict=True):
+        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **PART_SEARCH), strict=True):
             np.testing.assert_array_equal(mine, plain)
         assert not part.extents.flags.writeable
         _assert_valid(part, points)
-    assert SMALL_PART_SEARCH != PART_SEARCH
 
 
 # Degenerate and extreme clouds --------------------------------------------------------------
@@ -511,6 +509,20 @@ def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded,
     assert np.all(bounds * (1.0 - search.BOUND_SLACK) <= volumes)
 
 
+def _distinct_smallest(turned, kept):
+    """The search's starts, in plain Python: the smallest distinct boxes, listed in axis order."""
+    same = np.cos(search.SAME_START)
+    listed = []  # axis indices, smallest box first
+    for j, (volume, frame) in enumerate(turned):
+        repeats = [i for i in listed if search._same_frame(frame, turned[i][1], same)]
+        if any(turned[i][0] <= volume for i in repeats):
+            continue
+        listed = [i for i in listed if i not in repeats]
+        listed.insert(sum(turned[i][0] <= volume for i in listed), j)
+        listed = listed[:kept]
+    return listed
+
+
 def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps):
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
     arrays = (vertices, found.normals, found.edges, found.edge_facets)
@@ -519,10 +531,10 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
         vertices, found.normals, found.areas, found.edges, *knobs
     )
     turned = [_turn(vertices, found, axis) for axis in axes]
-    order = search._ranking(np.array([v for v, _ in turned]), len(axes))[:starts]
-    frames = np.array([turned[i][1] for i in order])
+    listed = _distinct_smallest(turned, min(starts, len(axes)))
+    frames = np.array([turned[i][1] for i in listed])
     volume, frame = search.polish(
-        *arrays, work, frames, np.array([turned[i][0] for i in order]), rounds
+        *arrays, work, frames, np.array([turned[i][0] for i in listed]), rounds
     )
     for _ in range(rounds if grid_size > 0 else 0):
         best, best_frame = volume, None
