@@ -228,6 +228,7 @@ def fit_kernel(
     walk_steps: int,
     walk_step: float,
     walk_axes: int,
+    distinct_starts: int,
 ) -> tuple:
     """
     Fit the minimum-volume oriented box of finite points (see the module notes).
@@ -392,6 +393,7 @@ def fit_kernel(
                 walk_steps,
                 walk_step,
                 walk_axes,
+                distinct_starts,
             )
             copy_frame(frame, frames[used])
             used += 1
@@ -421,6 +423,7 @@ def fit_kernel(
                 walk_steps,
                 walk_step,
                 walk_axes,
+                distinct_starts,
             )
             if searched.shape[0] < count:
                 frame, bounds, exact = _add_leaks(
@@ -713,6 +716,7 @@ def fit_box(
     coreset_min: int = CORESET_MIN_POINTS,
     walk_steps: int = 6,
     walk_axes: int = 3,
+    distinct_starts: int = 1,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return the minimum-volume oriented box enclosing `points` as plain arrays.
@@ -747,6 +751,9 @@ def fit_box(
         flush with two hull edges that lie between the candidate axes and the grid's.
     :param walk_axes: the box's axes walked in turn (1 to 3; more escape more local minima
         where no tilt of the first axis helps, at the cost of another, shorter walk each).
+    :param distinct_starts: 1: the polish starts from the smallest boxes whose axes do not pair
+        up within :data:`~mvbb_ros.geometry.boxfit.search.SAME_START`; 0: from the smallest boxes,
+        near-copies included.
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -764,6 +771,7 @@ def fit_box(
         coreset_min=coreset_min,
         walk_steps=walk_steps,
         walk_axes=walk_axes,
+        distinct_starts=distinct_starts,
     )
     return _run(_as_points(points), knobs)
 
@@ -783,6 +791,7 @@ class _Knobs(NamedTuple):
     coreset_min: int
     walk_steps: int
     walk_axes: int
+    distinct_starts: int
 
 
 def _knobs(
@@ -799,6 +808,7 @@ def _knobs(
     coreset_min: int,
     walk_steps: int,
     walk_axes: int,
+    distinct_starts: int,
 ) -> _Knobs:
     """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
     return _Knobs(
@@ -814,7 +824,14 @@ def _knobs(
         _check_knob('coreset_min', coreset_min, 0),
         _check_knob('walk_steps', walk_steps, 0),
         _check_knob('walk_axes', walk_axes, 1),
+        _check_flag('distinct_starts', distinct_starts),
     )
+
+
+def _check_flag(name: str, value: int) -> int:
+    if _check_knob(name, value, 0) > 1:
+        raise ValueError(f'{name} must be 0 or 1, got {value!r}')
+    return int(value)
 
 
 def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -835,18 +852,40 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
         knobs.walk_steps,
         WALK_STEP,
         knobs.walk_axes,
+        knobs.distinct_starts,
     )
 
 
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
-#: The knobs of a decomposition's part fits: the default search, parts of 1,000 points or more
-#: hulled on its 32 x 32 grid coreset (re-checked against every point, :func:`_add_leaks`). The
-#: same search as every other fit: a lighter one missed the best basin on about one part in a
-#: hundred (up to 1.05 x the reference); the volume over an exhaustive reference on varied clouds
-#: (``benchmarks/boxfit_quality.py``) and the cost are in ``docs/performance.md``.
-PART_SEARCH: dict[str, int] = {'coreset_min': 1000}
+#: The knobs of a decomposition's light part fits (``part_search: light``): 6 starts, copies of
+#: one basin's box included, fewer candidate axes and edge pairs, a short walk of the first axis
+#: only, and parts of 1,000 points or more hulled on a 12 x 12 grid coreset (re-checked against
+#: every point, :func:`_add_leaks`). Lighter than the default search: a decomposition fits tens
+#: of parts a cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`. It misses the best basin
+#: on about one part in 200 (up to 1.05 x an exhaustive reference; ``docs/performance.md``).
+PART_SEARCH: dict[str, int] = {
+    'candidates': 16,
+    'starts': 6,
+    'grid_size': 0,
+    'pair_edges': 6,
+    'coreset_cells': 12,
+    'coreset_min': 1000,
+    'walk_steps': 2,
+    'walk_axes': 1,
+    'distinct_starts': 0,
+}
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
+#: The knobs of light part fits of fewer than ``PART_SEARCH['coreset_min']`` points, hulled on
+#: every point: their hulls are small, so their search is cheap and can afford 8 starts and a
+#: longer walk of every axis (the light search's misses were mostly such parts).
+SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 4, 'walk_axes': 3}
+_SMALL_PART_KNOBS = _DEFAULT_KNOBS._replace(**SMALL_PART_SEARCH)
+#: The knobs of a decomposition's full part fits (``part_search: full``, the node's): the
+#: default search, parts of 1,000 points or more hulled on its 32 x 32 grid coreset. Within
+#: 1.01 x an exhaustive reference on 15,000 varied clouds, at about twice a light fit's time.
+FULL_PART_SEARCH: dict[str, int] = {'coreset_min': 1000}
+_FULL_PART_KNOBS = _DEFAULT_KNOBS._replace(**FULL_PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from
 #: 16,384 points on (instead of 65,536). Dense curved clouds have thousands of hull vertices; on
 #: the 11 shared clouds of 16,384 points or more the root volume is median 1.0002 x, at most 1.0068
@@ -854,18 +893,26 @@ _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 ROOT_SEARCH: dict[str, int] = {'coreset_min': 16384}
 
 
-def fit_part(points: FloatArray, *, seed: int = 0) -> Box:
+def fit_part(points: FloatArray, *, seed: int = 0, full: bool = False) -> Box:
     """
-    Return the minimum-volume box of a decomposition's part: :data:`PART_SEARCH`, no checks.
+    Return the minimum-volume box of a decomposition's part, without checks.
 
-    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` and without its checks and
-    conversions, for points known to be valid (the parts the decomposition cuts).
+    :func:`minimum_bounding_box` with the knobs of :data:`PART_SEARCH` (:data:`SMALL_PART_SEARCH`
+    below its ``coreset_min`` points), or of :data:`FULL_PART_SEARCH` when `full`, and without
+    its checks and conversions, for points known to be valid (the parts the decomposition cuts).
 
     :param points: (N, 3) C-contiguous float64 array of finite points, N >= 1 (not checked).
     :param seed: an integer >= 0 (not checked).
+    :param full: the default search instead of the light one.
     :return: the box.
     """
-    return Box.trusted(*_run(points, _PART_KNOBS._replace(seed=seed & (2**63 - 1))))
+    if full:
+        knobs = _FULL_PART_KNOBS
+    elif points.shape[0] < _PART_KNOBS.coreset_min:
+        knobs = _SMALL_PART_KNOBS
+    else:
+        knobs = _PART_KNOBS
+    return Box.trusted(*_run(points, knobs._replace(seed=seed & (2**63 - 1))))
 
 
 def minimum_bounding_box(
@@ -883,6 +930,7 @@ def minimum_bounding_box(
     coreset_min: int = CORESET_MIN_POINTS,
     walk_steps: int = 6,
     walk_axes: int = 3,
+    distinct_starts: int = 1,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -908,6 +956,7 @@ def minimum_bounding_box(
     :param coreset_min: see :func:`fit_box`.
     :param walk_steps: see :func:`fit_box`.
     :param walk_axes: see :func:`fit_box`.
+    :param distinct_starts: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -925,6 +974,7 @@ def minimum_bounding_box(
         coreset_min=coreset_min,
         walk_steps=walk_steps,
         walk_axes=walk_axes,
+        distinct_starts=distinct_starts,
     )
     # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
     return Box.trusted(center, rotation, extents)

@@ -753,6 +753,7 @@ def search_kernel(
     walk_steps: int,
     walk_step: float,
     walk_axes: int,
+    distinct: int,
 ) -> tuple:
     """
     Search the frame of the minimum-volume box of a full-dimensional hull.
@@ -765,9 +766,10 @@ def search_kernel(
     )
     count = axes.shape[0]
     kept = max(1, min(starts, count))
-    # The starts of the polish: the `kept` smallest distinct boxes, kept in a list as the axes
-    # are turned in order. A box the same as one listed (axes paired within SAME_START) replaces
-    # the larger ones it repeats, or is dropped when one listed is no larger. An axis whose
+    # The starts of the polish: the `kept` smallest boxes (with `distinct`, distinct ones), kept
+    # in a list as the axes are turned in order. With `distinct`, a box the same as one listed
+    # (axes paired within SAME_START) replaces the larger ones it repeats, or is dropped when
+    # one listed is no larger. An axis whose
     # volume bound is above the last of a full list cannot change it, and is not turned (the
     # slack covers the bound's rounding; the starts are the same as with every axis turned).
     same = math.cos(SAME_START)
@@ -792,7 +794,7 @@ def search_kernel(
         if filled == kept and not volume < listed_volumes[kept - 1]:
             continue
         repeated = False
-        for s in range(filled):
+        for s in range(filled if distinct else 0):
             if listed_volumes[s] <= volume and _same_frame(frames[j], frames[listed[s]], same):
                 repeated = True
                 break
@@ -800,7 +802,7 @@ def search_kernel(
             continue
         left = 0
         for s in range(filled):
-            if not _same_frame(frames[j], frames[listed[s]], same):
+            if not distinct or not _same_frame(frames[j], frames[listed[s]], same):
                 listed[left] = listed[s]
                 listed_volumes[left] = listed_volumes[s]
                 left += 1
@@ -937,4 +939,5 @@ def warm_up() -> None:
         4,
         0.02,
         3,
+        1,
     )

@@ -45,6 +45,9 @@ DEFAULT_MIN_POINTS = 10
 #: boxes are smaller by more than this share of the box's volume: near-ties keep the paper's
 #: cut (the PCL stereo mug's handle cut against a rim slab 0.2 % smaller; docs/single_views.md).
 RESCORE_MARGIN = 0.005
+#: How thoroughly the parts' boxes are searched (see :func:`decompose`).
+PartSearch = Literal['light', 'full']
+PART_SEARCHES: tuple[PartSearch, ...] = get_args(PartSearch)
 #: Processing orders of the boxes waiting to be tested (see :func:`decompose`).
 Order = Literal['volume', 'gain', 'breadth', 'depth']
 ORDERS: tuple[Order, ...] = get_args(Order)
@@ -76,6 +79,7 @@ class DecompositionSettings:
     grid_cells: int = splitting.DEFAULT_GRID_CELLS
     order: Order = 'volume'
     min_thickness: float = 0.0
+    part_search: PartSearch = 'light'
 
     def __post_init__(self) -> None:
         threshold = self.gain_threshold
@@ -103,6 +107,10 @@ class DecompositionSettings:
         if not 0.0 <= float(thickness) < math.inf:
             raise ValueError(f'min_thickness must be finite and >= 0, got {thickness!r}')
         object.__setattr__(self, 'min_thickness', float(thickness))
+        if self.part_search not in PART_SEARCHES:
+            raise ValueError(
+                f'part_search must be one of {PART_SEARCHES}, got {self.part_search!r}'
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -414,7 +422,11 @@ def _best_split(
         if not fit_parts:
             return _Split(cut=cut, parts=parts, boxes=None)
         larger = 0 if len(parts[0]) >= len(parts[1]) else 1
-        first = fit_part(np.take(points, parts[larger], axis=0), seed=settings.seed)
+        first = fit_part(
+            np.take(points, parts[larger], axis=0),
+            seed=settings.seed,
+            full=settings.part_search == 'full',
+        )
         candidates.append((cut, parts, larger, first))
     if not candidates:
         return None
@@ -431,7 +443,11 @@ def _best_split(
         margin = RESCORE_MARGIN * box.volume if best is not None and best.cut is paper_cut else 0.0
         if best is not None and not first.volume < best.volume - margin:
             continue
-        second = fit_part(np.take(points, parts[1 - larger], axis=0), seed=settings.seed)
+        second = fit_part(
+            np.take(points, parts[1 - larger], axis=0),
+            seed=settings.seed,
+            full=settings.part_search == 'full',
+        )
         boxes = (first, second) if larger == 0 else (second, first)
         split = _Split(cut=cut, parts=parts, boxes=boxes)
         if best is None or split.volume < best.volume - margin:
@@ -480,7 +496,11 @@ def _best_split_parallel(
         return None
 
     def fit(indices: IndexArray) -> Callable[[], Box]:
-        return lambda: fit_part(np.take(points, indices, axis=0), seed=settings.seed)
+        return lambda: fit_part(
+            np.take(points, indices, axis=0),
+            seed=settings.seed,
+            full=settings.part_search == 'full',
+        )
 
     first_fits = [pool.submit(fit(parts[larger])) for _, parts, larger in cuts]
     second_fits = [pool.submit(fit(parts[1 - larger])) for _, parts, larger in cuts]
@@ -575,6 +595,7 @@ def decompose(
     grid_cells: int = splitting.DEFAULT_GRID_CELLS,
     order: Order = 'volume',
     min_thickness: float = 0.0,
+    part_search: PartSearch = 'light',
 ) -> Decomposition:
     """
     Decompose a point cloud into minimum-volume bounding boxes by fit-and-split.
@@ -622,11 +643,15 @@ def decompose(
     the same as with every fit made (the ``'gain'`` order and rescoring fit every split they
     rank).
 
-    Box fits: every box gets the default search (:func:`mvbb_ros.geometry.boxfit.fit.fit_box`),
-    hulled on its grid coreset from 16,384 points on for the root
-    (:data:`~mvbb_ros.geometry.boxfit.fit.ROOT_SEARCH`) and from 1,000 points on for the parts
-    (:data:`~mvbb_ros.geometry.boxfit.fit.PART_SEARCH`); each within 1 % of an exhaustive
-    reference on thousands of varied clouds (``docs/performance.md``).
+    Box fits: the root gets the default search (:func:`mvbb_ros.geometry.boxfit.fit.fit_box`,
+    hulled on its grid coreset from 16,384 points on:
+    :data:`~mvbb_ros.geometry.boxfit.fit.ROOT_SEARCH`); each part the light
+    :data:`~mvbb_ros.geometry.boxfit.fit.PART_SEARCH` (fewer candidate axes and starts, a short
+    walk, parts of 1,000 points or more hulled on a grid coreset) or, with ``part_search:
+    'full'``, the default search (:data:`~mvbb_ros.geometry.boxfit.fit.FULL_PART_SEARCH`). The
+    light search misses the best box by more than 1 % on about one part in 200, the full one
+    on none of 15,000 varied clouds, at about twice the light one's time
+    (``docs/performance.md``).
 
     :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
         and volumes come out in those units. Every criterion is scale-free: theta and Theta*
@@ -657,6 +682,8 @@ def decompose(
         than it is refused (``stop_reason='thin'``). On single sensor views the paper's gain
         peels plates of sensor thickness off a surface; the floor keeps boxes at least as thick
         as the sensor can resolve (``docs/single_views.md``).
+    :param part_search: ``'light'`` (default) or ``'full'``: how the parts' boxes are searched
+        (Box fits above).
     :return: the decomposition: the tree (``nodes``, ``root``), the leaves in node order with
         their point indices, the dropped points and the settings.
     :param pool: workers that fit the candidate cuts' parts at once (:func:`_best_split`);
@@ -674,6 +701,7 @@ def decompose(
         grid_cells=grid_cells,
         order=order,
         min_thickness=min_thickness,
+        part_search=part_search,
     )
     pts = _validated_points(points)
     root = _Draft(

@@ -18,7 +18,9 @@ from mvbb_ros.geometry.boxfit.fit import (
     fit_box,
     fit_part,
     minimum_bounding_box,
+    FULL_PART_SEARCH,
     PART_SEARCH,
+    SMALL_PART_SEARCH,
 )
 from mvbb_ros.geometry.boxfit.rectangle import min_area_rectangle
 import numpy as np
@@ -97,6 +99,7 @@ def test_wrong_shapes_are_rejected(shape):
     [
         {'sample_size': 0},
         {'starts': 0},
+        {'distinct_starts': 2},
         {'grid_size': -1},
         {'candidates': 2.5},
         {'seed': True},
@@ -147,16 +150,22 @@ def test_the_box_is_read_only_and_the_plain_arrays_agree():
 
 
 def test_a_part_fit_is_the_fit_with_the_part_search():
-    """fit_part skips the checks only: fit_box's box with PART_SEARCH, on both sides of its coreset."""
+    """fit_part skips the checks only: fit_box's box with PART_SEARCH (or SMALL_PART_SEARCH)."""
     many = np.tile(_cuboid_cloud(2), (3, 1))
     size = PART_SEARCH['coreset_min']
-    for points in (many[:size], many[: size - 1]):
+    for points, knobs, full in (
+        (many[:size], PART_SEARCH, False),
+        (many[: size - 1], SMALL_PART_SEARCH, False),
+        (many[:size], FULL_PART_SEARCH, True),
+        (many[: size - 1], FULL_PART_SEARCH, True),
+    ):
         points = np.ascontiguousarray(points)
-        part = fit_part(points, seed=3)
-        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **PART_SEARCH), strict=True):
+        part = fit_part(points, seed=3, full=full)
+        for mine, plain in zip(_fields(part), fit_box(points, seed=3, **knobs), strict=True):
             np.testing.assert_array_equal(mine, plain)
         assert not part.extents.flags.writeable
         _assert_valid(part, points)
+    assert SMALL_PART_SEARCH != PART_SEARCH
 
 
 # Degenerate and extreme clouds --------------------------------------------------------------
@@ -509,12 +518,12 @@ def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded,
     assert np.all(bounds * (1.0 - search.BOUND_SLACK) <= volumes)
 
 
-def _distinct_smallest(turned, kept):
-    """The search's starts, in plain Python: the smallest distinct boxes, listed in axis order."""
+def _distinct_smallest(turned, kept, distinct):
+    """The search's starts, in plain Python: the smallest (distinct) boxes, in axis order."""
     same = np.cos(search.SAME_START)
     listed = []  # axis indices, smallest box first
     for j, (volume, frame) in enumerate(turned):
-        repeats = [i for i in listed if search._same_frame(frame, turned[i][1], same)]
+        repeats = [i for i in listed if distinct and search._same_frame(frame, turned[i][1], same)]
         if any(turned[i][0] <= volume for i in repeats):
             continue
         listed = [i for i in listed if i not in repeats]
@@ -523,7 +532,7 @@ def _distinct_smallest(turned, kept):
     return listed
 
 
-def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps):
+def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct):
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
     arrays = (vertices, found.normals, found.edges, found.edge_facets)
     work = search.new_work(len(vertices), len(found.normals))
@@ -531,7 +540,7 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
         vertices, found.normals, found.areas, found.edges, *knobs
     )
     turned = [_turn(vertices, found, axis) for axis in axes]
-    listed = _distinct_smallest(turned, min(starts, len(axes)))
+    listed = _distinct_smallest(turned, min(starts, len(axes)), distinct)
     frames = np.array([turned[i][1] for i in listed])
     volume, frame = search.polish(
         *arrays, work, frames, np.array([turned[i][0] for i in listed]), rounds
@@ -560,9 +569,20 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
     grid_size=st.integers(0, 2),
     walk_steps=st.integers(0, 3),
     rounded=st.booleans(),
+    distinct=st.sampled_from([0, 1]),
 )
 def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
-    count, seed, candidates, pair_edges, exhaustive, starts, rounds, grid_size, walk_steps, rounded
+    count,
+    seed,
+    candidates,
+    pair_edges,
+    exhaustive,
+    starts,
+    rounds,
+    grid_size,
+    walk_steps,
+    rounded,
+    distinct,
 ):
     # Axes and grid directions ruled out by their volume bounds change nothing.
     vertices, found = _random_hull(count, seed, rounded)
@@ -570,9 +590,11 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     knobs = (seed, candidates, pair_edges, 200, exhaustive)  # 200: the sample size
     volume, frame = search.search_kernel(
         vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs,
-        starts, rounds, grid_size, walk_steps, fit.WALK_STEP, 2,
+        starts, rounds, grid_size, walk_steps, fit.WALK_STEP, 2, distinct,
     )  # fmt: skip
-    expected = _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps)
+    expected = _plain_search(
+        vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct
+    )
     expected_volume, expected_frame = expected
     assert volume == expected_volume
     np.testing.assert_array_equal(frame, expected_frame)

@@ -126,6 +126,7 @@ decomposition_options = st.fixed_dictionaries(
         'max_boxes': st.none() | st.integers(1, 6),
         'order': st.sampled_from(ORDERS),
         'grid_cells': st.sampled_from([2, 7, 32, 128]),
+        'part_search': st.sampled_from(['light', 'full']),
     }
 )
 
@@ -280,8 +281,10 @@ def fitting_every_part(points: np.ndarray, **options) -> mvbb_ros.Decomposition:
             parts = (draft.point_indices[~upper], draft.point_indices[upper])
             if not fit_parts:
                 return decomposition._Split(cut=cut, parts=parts, boxes=None)
+            full = settings.part_search == 'full'
             boxes = tuple(
-                fit_part(np.ascontiguousarray(points[p]), seed=settings.seed) for p in parts
+                fit_part(np.ascontiguousarray(points[p]), seed=settings.seed, full=full)
+                for p in parts
             )
             splits.append(decomposition._Split(cut=cut, parts=parts, boxes=boxes))
         if not splits:
@@ -473,6 +476,7 @@ def test_malformed_input_is_refused_clearly(points, message):
         ('min_points', 2.5),
         ('split_measure', 'perimeter'),
         ('rescore_cuts', -1),
+        ('part_search', 'heavy'),
         ('max_boxes', 0),
         ('seed', -1),
         ('grid_cells', 1),
@@ -542,6 +546,7 @@ def test_json_has_the_tree_and_the_boxes():
         'grid_cells': result.settings.grid_cells,
         'order': 'volume',
         'min_thickness': 0.0,
+        'part_search': 'light',
     }
     assert document['point_count'] == len(points)
     assert document['dropped_point_count'] == 1
