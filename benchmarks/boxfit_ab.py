@@ -27,6 +27,7 @@ from pathlib import Path
 import statistics
 import sys
 import time
+from typing import Any
 
 from mvbb_ros.geometry.boxfit import fit as new_fit
 from mvbb_ros.geometry.decomposition import tree
@@ -58,8 +59,13 @@ def main(argv: list[str] | None = None) -> int:
     scans = [points for name, points in clouds.items() if name.startswith('scans/')]
     models = {name: points for name, points in clouds.items() if name.startswith('models/')}
     bunny = clouds['models/bunny_vertices']
+
+    def old_part(points: Any, *, seed: int = 0, full: bool = False) -> Any:
+        # An older package has one part search: the light one (decompose()'s default).
+        return old_fit.fit_part(points, seed=seed)
+
     fits = {
-        'old': (old_fit.fit_part, old_fit.minimum_bounding_box),
+        'old': (old_part, old_fit.minimum_bounding_box),
         'new': (new_fit.fit_part, new_fit.minimum_bounding_box),
     }
 
