@@ -17,8 +17,8 @@ from mvbb_ros.geometry.boxfit import fit, hull, search
 from mvbb_ros.geometry.boxfit.fit import (
     fit_box,
     fit_part,
-    minimum_bounding_box,
     FULL_PART_SEARCH,
+    minimum_bounding_box,
     PART_SEARCH,
     SMALL_PART_SEARCH,
 )
@@ -519,7 +519,7 @@ def test_the_volume_bound_of_an_axis_is_below_its_best_box(count, seed, rounded,
 
 
 def _distinct_smallest(turned, kept, distinct):
-    """The search's starts, in plain Python: the smallest (distinct) boxes, in axis order."""
+    """Return the search's starts in plain Python: the smallest (distinct) boxes, in axis order."""
     same = np.cos(search.SAME_START)
     listed = []  # axis indices, smallest box first
     for j, (volume, frame) in enumerate(turned):
