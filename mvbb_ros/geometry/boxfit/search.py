@@ -769,9 +769,9 @@ def search_kernel(
     # The starts of the polish: the `kept` smallest boxes (with `distinct`, distinct ones), kept
     # in a list as the axes are turned in order. With `distinct`, a box the same as one listed
     # (axes paired within SAME_START) replaces the larger ones it repeats, or is dropped when
-    # one listed is no larger. An axis whose
-    # volume bound is above the last of a full list cannot change it, and is not turned (the
-    # slack covers the bound's rounding; the starts are the same as with every axis turned).
+    # one listed is no larger. An axis whose volume bound is above the last of a full list
+    # cannot change it, and is not turned (the slack covers the bound's rounding; the starts
+    # are the same as with every axis turned).
     same = math.cos(SAME_START)
     listed = np.empty(kept, dtype=np.int64)
     listed_volumes = np.full(kept, np.inf)
