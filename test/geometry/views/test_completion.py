@@ -294,6 +294,13 @@ def test_one_point_per_cell_among_the_kept_points_is_that_of_the_kept_points_alo
     np.testing.assert_array_equal(_one_per_cell(points, keep, cell), expected)
 
 
+def _random_cells(rng: np.random.Generator, rows: int, cols: int, size: int) -> np.ndarray:
+    """Return `size` random (row, col) raster cells, about 15 % of them outside (-1)."""
+    out = np.column_stack([rng.integers(0, rows, size), rng.integers(0, cols, size)])
+    out[rng.random(size) < 0.15] = -1
+    return out
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     st.integers(1, 30),
@@ -308,14 +315,10 @@ def test_the_far_side_lengths_are_those_of_the_numpy_steps(rows, cols, count, fa
     from scipy import ndimage
 
     rng = np.random.default_rng(seed)
-
-    def cells(size: int) -> np.ndarray:
-        out = np.column_stack([rng.integers(0, rows, size), rng.integers(0, cols, size)])
-        out[rng.random(size) < 0.15] = -1
-        return out
-
-    near_cells, near_ranges = cells(count), rng.uniform(0.3, 1.0, count)
-    far_cells, far_ranges = cells(far), rng.uniform(0.3, 1.5, far)
+    near_cells = _random_cells(rng, rows, cols, count)
+    near_ranges = rng.uniform(0.3, 1.0, count)
+    far_cells = _random_cells(rng, rows, cols, far)
+    far_ranges = rng.uniform(0.3, 1.5, far)
     inside = far_cells[:, 0] >= 0
     deepest = np.full((rows, cols), -np.inf)
     np.maximum.at(deepest, (far_cells[inside, 0], far_cells[inside, 1]), far_ranges[inside])
@@ -356,8 +359,7 @@ def test_the_points_behind_others_are_those_of_the_numpy_steps(rows, cols, count
     from mvbb_ros.geometry.views.raster import _behind
 
     rng = np.random.default_rng(seed)
-    cells = np.column_stack([rng.integers(0, rows, count), rng.integers(0, cols, count)])
-    cells[rng.random(count) < 0.15] = -1
+    cells = _random_cells(rng, rows, cols, count)
     ranges = np.round(rng.uniform(0.3, 1.0, count), 2)  # equal ranges in a cell
     expected = _behind_reference(cells, ranges, cols, gap)
     np.testing.assert_array_equal(_behind(cells, ranges, rows, cols, gap), expected)
