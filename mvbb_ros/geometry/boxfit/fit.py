@@ -87,10 +87,10 @@ CORESET_MIN_POINTS = 65536
 #: before they are turned, and 24 missed the best basin on 7 of 9,000 varied clouds (up to
 #: 1.034 x the reference; ``docs/performance.md``).
 CANDIDATE_AXES = 48
-#: Distinct candidate boxes that start the polish (``starts``). 12 rather than 8: near-copies of
+#: Distinct candidate boxes that start the polish (``starts``). 16 rather than 8: near-copies of
 #: one basin's box no longer count twice (:data:`~mvbb_ros.geometry.boxfit.search.SAME_START`),
-#: and the twelve distinct smallest reach the basin 8 missed on a 976-point part (1.0215 x the
-#: reference) at no measurable cost, since the polish halves the starts every round
+#: and the sixteen distinct smallest reach the basins 8 (and 12) missed on varied clouds (up to
+#: 1.0215 x the reference) at no measurable cost, since the polish halves the starts every round
 #: (``docs/performance.md``).
 STARTS = 16
 #: Relative margin (of the box's extent) by which a point may stick out of the box of a
