@@ -30,6 +30,7 @@ from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.density import finer_object_points
 from mvbb_ros.pipeline.filtering import (
+    crop_box,
     crop_points,
     filter_points,
     FilterCounts,
@@ -379,6 +380,17 @@ def process_points(
         count = len(array) if decoded is None else decoded.finite
         return PipelineResult(counts=_empty_counts(count), timings_ms=timings, warning=reason)
     units_note = units_hint(array, corners)
+    if (
+        decoded is None
+        and corners is not None
+        and array.dtype in (np.float32, np.float64)
+        and array.ndim == 2
+        and array.shape[1] == 3
+        and not crop_box(settings.filtering.crop_min, settings.filtering.crop_max)[1]
+    ):
+        # No crop box: the corners just measured are what the decoder would have given (every
+        # point finite, none cropped), so the voxel grid does not measure them again.
+        bounds, finite = corners, len(array)
     near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, corners)
     if near is not None:
         # The region of interest before the filters: a room-sized cloud shrinks first.
