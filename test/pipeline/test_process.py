@@ -186,6 +186,28 @@ def test_the_crop_while_decoding_gives_what_the_filters_give_on_points():
     }
 
 
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+def test_points_without_a_crop_box_give_what_an_open_crop_and_a_decoded_cloud_give(dtype):
+    """process_points reuses the corners of its extent check as the voxel grid's bounds."""
+    points = l_shape().astype(dtype)
+    settings = PipelineSettings()
+    plain = process_points(points, settings)
+    low, high = points.min(axis=0) - 1.0, points.max(axis=0) + 1.0
+    opened = {'crop_min': low.tolist(), 'crop_max': high.tolist()}
+    cropped = process_points(points, settings.updated(opened))
+    decoded = process_cloud(create_cloud_xyz(points, frame_id='camera'), settings)
+
+    assert plain.warning is None
+    assert plain.counts == cropped.counts
+    assert plain.counts.finite == plain.counts.cropped == len(points)
+    others = [cropped, decoded] if dtype == np.float32 else [cropped]  # the decoder: float32
+    for other in others:
+        assert len(other.leaves) == len(plain.leaves) >= 1
+        for mine, theirs in zip(plain.leaves, other.leaves, strict=True):
+            assert mine.volume == theirs.volume
+            np.testing.assert_array_equal(mine.center, theirs.center)
+
+
 def test_the_voxel_backend_setting_is_gone_and_says_why():
     with pytest.raises(ValueError, match="voxel_backend was replaced by nothing.*Open3D's"):
         PipelineSettings().updated({'voxel_backend': 'numpy'})
