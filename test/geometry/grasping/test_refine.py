@@ -94,10 +94,11 @@ def test_an_antipodal_grasp_across_a_box_holds_with_the_width_of_the_box(box):
     view = GraspView(gripper_max_width=0.14, standoff=0.05)
     straight = evaluate_lines(model, *_lines(rotation, center, 2, 0), ON, view)[0]
     assert straight[COL_VALID] == 1.0, 'closing across two parallel faces holds'
-    # The contact line is nearly along both normals: within 13 degrees (margin 0.5). A 2 cm pad
-    # on a 3 x 3 cm face sampled every 4 mm averages normals tilted by the face's edges: 12
-    # degrees at worst in 300 random boxes (margin 0.54), 1 degree at the median.
-    assert straight[COL_MARGIN] > 0.5, 'the contact line is nearly along both normals'
+    # The contact line is nearly along both normals (margin 0.45: within 14.6 degrees). A 2 cm
+    # pad on a face 3 cm high sampled every 4 mm averages normals tilted by the face's edges:
+    # margin 0.49 (13.4 degrees) at worst with faces of exactly 3 cm, the strategy's bound (0.52
+    # in 1,000 boxes with such faces), 0.75 in 1,500 random boxes, 1 degree at the median.
+    assert straight[COL_MARGIN] > 0.45, 'the contact line is nearly along both normals'
     # The width the object needs along the closing line: the box's extent (up to a cell).
     assert straight[COL_WIDTH] == pytest.approx(extents[0], abs=1.5 * CELL)
     assert straight[COL_CONTACT_WIDTH] == pytest.approx(extents[0], abs=1.5 * CELL)
