@@ -393,8 +393,9 @@ def process_points(
         bounds, finite = corners, len(array)
     near = roi_mask(array, settings.view.viewpoint, settings.scene.roi_max_distance, corners)
     if near is not None:
-        # The region of interest before the filters: a room-sized cloud shrinks first.
-        array, bounds, finite = array[near], None, None
+        # The region of interest before the filters: a room-sized cloud shrinks first. The rows
+        # by np.compress: numpy's boolean row index takes 5 x as long on 300k points.
+        array, bounds, finite = np.compress(near, array, axis=0), None, None
     filtering = settings.filtering
     min_points = settings.decomposition.min_points
     view = settings.view
@@ -451,7 +452,8 @@ def process_points(
         else:
             if unfiltered is not None:
                 unfiltered.cancel()
-            standing_points = scoped[standing_mask(scoped, scene.support, settings.scene)]
+            on_table = standing_mask(scoped, scene.support, settings.scene)
+            standing_points = np.compress(on_table, scoped, axis=0)
             uncropped = replace(filtering, crop_min=(), crop_max=())
             filtered, counts = filter_points(standing_points, pool=pool, **asdict(uncropped))
             raw = standing_points
