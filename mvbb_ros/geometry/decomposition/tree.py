@@ -386,6 +386,14 @@ def _validated_points(points: ArrayLike) -> NDArray[np.float64]:
     return pts
 
 
+def _part_box(
+    points: NDArray[np.float64], indices: IndexArray, settings: DecompositionSettings
+) -> Box:
+    """Return the box of one part of a cut: the settings' seed and part search."""
+    part = np.take(points, indices, axis=0)
+    return fit_part(part, seed=settings.seed, full=settings.part_search == 'full')
+
+
 def _best_split(
     points: NDArray[np.float64],
     draft: _Draft,
@@ -422,11 +430,7 @@ def _best_split(
         if not fit_parts:
             return _Split(cut=cut, parts=parts, boxes=None)
         larger = 0 if len(parts[0]) >= len(parts[1]) else 1
-        first = fit_part(
-            np.take(points, parts[larger], axis=0),
-            seed=settings.seed,
-            full=settings.part_search == 'full',
-        )
+        first = _part_box(points, parts[larger], settings)
         candidates.append((cut, parts, larger, first))
     if not candidates:
         return None
@@ -443,11 +447,7 @@ def _best_split(
         margin = RESCORE_MARGIN * box.volume if best is not None and best.cut is paper_cut else 0.0
         if best is not None and not first.volume < best.volume - margin:
             continue
-        second = fit_part(
-            np.take(points, parts[1 - larger], axis=0),
-            seed=settings.seed,
-            full=settings.part_search == 'full',
-        )
+        second = _part_box(points, parts[1 - larger], settings)
         boxes = (first, second) if larger == 0 else (second, first)
         split = _Split(cut=cut, parts=parts, boxes=boxes)
         if best is None or split.volume < best.volume - margin:
@@ -496,11 +496,7 @@ def _best_split_parallel(
         return None
 
     def fit(indices: IndexArray) -> Callable[[], Box]:
-        return lambda: fit_part(
-            np.take(points, indices, axis=0),
-            seed=settings.seed,
-            full=settings.part_search == 'full',
-        )
+        return lambda: _part_box(points, indices, settings)
 
     first_fits = [pool.submit(fit(parts[larger])) for _, parts, larger in cuts]
     second_fits = [pool.submit(fit(parts[1 - larger])) for _, parts, larger in cuts]
