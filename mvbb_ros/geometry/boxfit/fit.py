@@ -883,7 +883,7 @@ SMALL_PART_SEARCH: dict[str, int] = {**PART_SEARCH, 'starts': 8, 'walk_steps': 4
 _SMALL_PART_KNOBS = _DEFAULT_KNOBS._replace(**SMALL_PART_SEARCH)
 #: The knobs of a decomposition's full part fits (``part_search: full``, the node's): the
 #: default search, parts of 1,000 points or more hulled on its 32 x 32 grid coreset. Within
-#: 1.01 x an exhaustive reference on 15,000 varied clouds, at about twice a light fit's time.
+#: 1.01 x an exhaustive reference on 30,000 varied clouds, at about twice a light fit's time.
 FULL_PART_SEARCH: dict[str, int] = {'coreset_min': 1000}
 _FULL_PART_KNOBS = _DEFAULT_KNOBS._replace(**FULL_PART_SEARCH)
 #: The knobs of a decomposition's root fit: the default search, hulled on the grid coreset from

@@ -646,7 +646,7 @@ def decompose(
     walk, parts of 1,000 points or more hulled on a grid coreset) or, with ``part_search:
     'full'``, the default search (:data:`~mvbb_ros.geometry.boxfit.fit.FULL_PART_SEARCH`). The
     light search misses the best box by more than 1 % on about one part in 200, the full one
-    on none of 15,000 varied clouds, at about twice the light one's time
+    on none of 30,000 varied clouds, at about twice the light one's time
     (``docs/performance.md``).
 
     :param points: (N, 3) points, N >= 1, finite, in any units (metres for sensor data); boxes
