@@ -40,5 +40,12 @@ if [ ! -f "$stamp" ] || [ -n "$(find "${inputs[@]}" -newer "$stamp" 2>/dev/null)
   touch "$stamp"
   echo "bootstrap: ready"
 fi
+# A .venv shared with another checkout (a symlink) may import the package from there, and
+# scripts run as files (benchmarks/*.py) would then run that checkout's code: point it here.
+installed="$(cd / && "$venv/bin/python" -c 'import mvbb_ros, os; print(os.path.dirname(os.path.dirname(os.path.realpath(mvbb_ros.__file__))))' 2>/dev/null || true)"
+if [ "$installed" != "$(realpath "$root")" ]; then
+  echo "bootstrap: the package in $venv came from ${installed:-nowhere}; installing $root"
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e "$root"
+fi
 # Every time: a kernel whose source changed since the cache was written compiles here, once.
 "$venv/bin/python" -m mvbb_ros.kernels
