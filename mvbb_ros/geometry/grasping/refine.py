@@ -817,6 +817,9 @@ def _ranking(
 
 #: The lines whose neighbours :func:`_pruned_ranking` evaluates first, per grasp published.
 PRUNE_BATCH = 4
+#: Each later batch adds this share of the lines scored so far (at least one ranking's worth):
+#: a ranking settled a little after the first batch scores little more than it needs.
+PRUNE_GROWTH = 0.25
 
 
 def _pruned_ranking(
@@ -884,7 +887,7 @@ def _pruned_ranking(
         # Strictly above the best bound left, with room for the bound's rounding.
         if len(picked) == limit + 1 and scores[-1] > bound_scores[by_bound[size]] + 1e-12:
             return quality, scored[picked], scores
-        size = min(count, 2 * size)
+        size = min(count, size + max(limit + 1, int(PRUNE_GROWTH * size)))
 
 
 def _same(first: Grasp, second: Grasp, settings: RefinementSettings) -> bool:

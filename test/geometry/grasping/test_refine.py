@@ -321,8 +321,10 @@ def test_a_bounded_grasp_list_is_the_head_of_the_whole_list(seed, count, limit):
     points = frame[np.isfinite(frame).all(axis=1)]
     whole = process_points(points, PipelineSettings().updated({'max_grasps': 0}))
     assert len(whole.grasps) > limit, 'the scene must have more grasps than the list keeps'
-    for batch in (1, refine.PRUNE_BATCH):
+    # One ranking's worth more each round, the defaults, and batches that double.
+    for batch, growth in ((1, 0.0), (refine.PRUNE_BATCH, refine.PRUNE_GROWTH), (1, 1.0)):
         with pytest.MonkeyPatch.context() as patch:
             patch.setattr(refine, 'PRUNE_BATCH', batch)
+            patch.setattr(refine, 'PRUNE_GROWTH', growth)
             bounded = process_points(points, PipelineSettings().updated({'max_grasps': limit}))
         assert _grasp_rows(bounded) == _grasp_rows(whole)[:limit]
