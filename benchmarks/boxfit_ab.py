@@ -22,19 +22,19 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import os
 from pathlib import Path
 import statistics
 import sys
 import time
 from typing import Any
 
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 from mvbb_ros.geometry.boxfit import fit as new_fit
 from mvbb_ros.geometry.decomposition import tree
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+DEFAULT_DATA = shared_data_folder()
 WORKLOADS = ('default fits', 'decompose scans', 'bunny 0.98')
 
 
@@ -45,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--rounds', type=int, default=5, help='rounds, old and new in turn')
     parser.add_argument('--data', type=Path, default=DEFAULT_DATA, help='shared data folder')
     args = parser.parse_args(argv)
+    if (reason := missing(args.data)) is not None:
+        sys.exit(reason)
     sys.path.insert(0, str(args.old))
     old_fit = importlib.import_module('oldboxfit.fit')
     paths = sorted(args.data.glob('models/*.npy')) + sorted(args.data.glob('scans/*.npy'))

@@ -25,17 +25,17 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 import importlib.util
-import os
 from pathlib import Path
 import sys
 import time
 
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+DEFAULT_DATA = shared_data_folder()
 
 FITS: dict[str, Callable[[np.ndarray], Box]] = {
     'default': minimum_bounding_box,
@@ -66,6 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--limit', type=float, default=1.01, help='largest ratio accepted')
     parser.add_argument('--data', type=Path, default=DEFAULT_DATA, help='shared data folder')
     args = parser.parse_args(argv)
+    if (reason := missing(args.data)) is not None:
+        sys.exit(reason)
     reference = _reference_module()
     ratios: dict[tuple[str, str], list[float]] = {}
     names: dict[tuple[str, str], list[str]] = {}

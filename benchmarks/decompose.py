@@ -55,20 +55,20 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
-import os
 from pathlib import Path
 import statistics
 import sys
 import time
 
 from mvbb_ros import kernel_cache
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 from mvbb_ros.geometry.boxfit import fit as fit_module
 from mvbb_ros.geometry.decomposition import tree as decomposition
 from mvbb_ros.geometry.decomposition.tree import decompose
 import numpy as np
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO_ROOT.parent / 'shared' / 'data'))
+SHARED_DATA = shared_data_folder()
 THRESHOLDS = (0.90, 0.94, 0.98)
 #: The paper's Table I box counts at t = 0.90, 0.94, 0.98 (vertex models).
 PAPER_TABLE = {
@@ -110,8 +110,8 @@ def mvbb_identity() -> str:
 
 def load(*relative: str) -> np.ndarray:
     path = SHARED_DATA.joinpath(*relative)
-    if not path.exists():
-        sys.exit(f'shared data not found: {path} (set MVBB_SHARED_DATA to its folder)')
+    if (reason := missing(path)) is not None:
+        sys.exit(reason)
     return np.load(path)
 
 
@@ -214,8 +214,8 @@ def time_breakdown() -> None:
 
 def scan_files() -> list[Path]:
     folder = SHARED_DATA / 'scans'
-    if not folder.exists():
-        sys.exit(f'shared data not found: {folder} (set MVBB_SHARED_DATA to its folder)')
+    if (reason := missing(folder)) is not None:
+        sys.exit(reason)
     return sorted(folder.glob('*.npy'))
 
 

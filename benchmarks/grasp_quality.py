@@ -49,12 +49,13 @@ from mvbb_ros.evaluation.gripper import (
 )
 from mvbb_ros.evaluation.mesh import GraspTarget
 from mvbb_ros.evaluation.report import format_comparison, plot_quality_space
+from mvbb_ros.evaluation.shared_data import shared_data_folder
 from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+DEFAULT_DATA = shared_data_folder()
 BEGIN, END = '<!-- BEGIN GENERATED -->', '<!-- END GENERATED -->'
 
 #: The even surface sample of each model that refined grasps are checked on (a complete scan).

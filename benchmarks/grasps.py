@@ -16,6 +16,7 @@ from pathlib import Path
 import sys
 import time
 
+from mvbb_ros.evaluation.shared_data import shared_data_folder
 from mvbb_ros.geometry.decomposition.tree import decompose
 from mvbb_ros.geometry.grasping.hypotheses import grasp_filter_counts, grasp_hypotheses
 import numpy as np
@@ -33,7 +34,7 @@ UP = np.array([0.0, 1.0, 0.0])
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--shared', type=Path, default=REPO_ROOT.parent / 'shared' / 'data')
+    parser.add_argument('--shared', type=Path, default=shared_data_folder())
     args = parser.parse_args()
     models = args.shared / 'models'
     if not models.is_dir():

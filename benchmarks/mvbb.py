@@ -30,12 +30,12 @@ import argparse
 from collections.abc import Callable
 from dataclasses import dataclass
 import json
-import os
 from pathlib import Path
 import statistics
 import sys
 import time
 
+from mvbb_ros.evaluation.shared_data import shared_data_folder
 from mvbb_ros.geometry.box import Box, right_handed
 from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
 import numpy as np
@@ -44,9 +44,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 import trimesh
 
-DEFAULT_DATA = Path(
-    os.environ.get('MVBB_SHARED_DATA', Path(__file__).resolve().parents[2] / 'shared' / 'data')
-)
+DEFAULT_DATA = shared_data_folder()
 GENERATED_POINTS = 300_000
 #: Clouds used by --quick: the paper's three models, three kinds of scans, one generated cloud.
 QUICK = (

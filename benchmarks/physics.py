@@ -55,15 +55,16 @@ import dataclasses
 from dataclasses import dataclass, field
 import json
 import math
-import os
 from pathlib import Path
 import subprocess
 import sys
 import time
 from typing import Any
 
+from mvbb_ros.evaluation.shared_data import shared_data_folder
+
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+DEFAULT_DATA = shared_data_folder()
 
 #: Grasps tried per view and contender ("one of the top five").
 TOP_K = 5

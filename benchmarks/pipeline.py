@@ -58,7 +58,9 @@ import subprocess
 import sys
 import time
 
-SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', '/work/shared/data'))
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
+
+SHARED_DATA = shared_data_folder()
 THREAD_VARIABLES = (
     'OMP_NUM_THREADS',
     'OPENBLAS_NUM_THREADS',
@@ -136,6 +138,10 @@ def build_cases(quick: bool) -> list[tuple[str, list]]:
         ),
         ('organized 300k', [organized_cloud(organized_frame(300_000, seed=s)) for s in seeds]),
     ]
+    reason = missing(SHARED_DATA)
+    if reason is not None:
+        print(f'{reason}: the scan and bag cases are left out', file=sys.stderr)
+        return cases
     scans = sorted((SHARED_DATA / 'scans').glob('*.npy'))
     scans.append(SHARED_DATA / 'models' / 'bunny_vertices.npy')
     for path in scans:

@@ -27,13 +27,14 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter
-import os
 from pathlib import Path
 import re
 import struct
+import sys
 import time
 
 from mvbb_ros.cli.cloud_io import load_cloud
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 from mvbb_ros.evaluation.synthetic import table_top_frame
 from mvbb_ros.pipeline.filtering import filter_points
 from mvbb_ros.pipeline.process import process_points
@@ -41,7 +42,7 @@ from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from scipy.spatial import cKDTree
 
-SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', '/work/shared/data'))
+SHARED_DATA = shared_data_folder()
 SCENES = {
     'mosd_learn33': None,
     'pcl_kinect_laptop_box_frame': ('pcl_kinect_laptop', 'pcl_kinect_box'),
@@ -226,7 +227,6 @@ def rendered_scenes(frames: int) -> None:
 def plane_fits(repeats: int = 20) -> None:
     """Print the plane fit's time and normal error against Open3D's segment_plane."""
     import subprocess
-    import sys
 
     from mvbb_ros.pipeline.scene import fit_plane
 
@@ -277,6 +277,8 @@ def main() -> None:
     parser.add_argument('--fits', action='store_true', help='also time the plane fit')
     args = parser.parse_args()
     if not args.no_real:
+        if (reason := missing(SHARED_DATA / 'scenes')) is not None:
+            sys.exit(f'{reason}; --no-real leaves the real scenes out')
         real_scenes()
     if args.fits:
         plane_fits()

@@ -15,19 +15,19 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 import statistics
 import sys
 import time
 
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 from mvbb_ros.geometry.views.objects import separate_objects
 from mvbb_ros.pipeline.process import CLUSTER_SPACINGS, point_spacing
 import numpy as np
 import open3d as o3d
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+DEFAULT_DATA = shared_data_folder()
 SIZES = (50_000, 100_000, 200_000)
 NOISE_M = 0.0015
 
@@ -47,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--repeats', type=int, default=3, help='timed calls per case')
     parser.add_argument('--data', type=Path, default=DEFAULT_DATA, help='shared data folder')
     args = parser.parse_args(argv)
+    if (reason := missing(args.data)) is not None:
+        sys.exit(reason)
     rng = np.random.default_rng(3)
     separate_objects(np.zeros((3, 3)) + [[0, 0, 0], [0.01, 0, 0], [1, 0, 0]], 0.02, spacing=0.01)
     print('| cloud | points | tolerance (mm) | objects | median s |')

@@ -38,6 +38,7 @@ def measure(seeds: list[int], runs: int, scans: bool) -> dict[str, dict]:
     """Return, per cloud, every stage's times (ms) and what the pipeline decided."""
     from dataclasses import replace
 
+    from mvbb_ros.evaluation.shared_data import missing
     from mvbb_ros.evaluation.synthetic import table_top_frame
     from mvbb_ros.pipeline.process import process_cloud, process_points
     from mvbb_ros.pipeline.settings import PipelineSettings
@@ -56,6 +57,8 @@ def measure(seeds: list[int], runs: int, scans: bool) -> dict[str, dict]:
         )
         clouds.append((f'frame {seed}', lambda c=cloud: process_cloud(c, settings)))
     if scans:
+        if (reason := missing(SHARED_DATA / 'scans')) is not None:
+            print(f'{reason}: the scans are left out', file=sys.stderr)
         for path in sorted((SHARED_DATA / 'scans').glob('*.npy')):
             points = resampled(path)
             clouds.append((path.stem, lambda p=points: process_points(p, settings)))

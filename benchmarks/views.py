@@ -44,7 +44,6 @@ import argparse
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 import json
-import os
 from pathlib import Path
 import statistics
 import subprocess
@@ -52,8 +51,10 @@ import sys
 import time
 from typing import Any
 
+from mvbb_ros.evaluation.shared_data import shared_data_folder
+
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO.parent / 'shared' / 'data'))
+DEFAULT_DATA = shared_data_folder()
 
 #: The paper's thresholds; grasps are judged at the node's default.
 THRESHOLDS: tuple[float, ...] = (0.90, 0.94, 0.98)

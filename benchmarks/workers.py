@@ -43,7 +43,9 @@ import subprocess
 import sys
 import time
 
-SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', '/work/shared/data'))
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
+
+SHARED_DATA = shared_data_folder()
 THREAD_VARIABLES = (
     'OMP_NUM_THREADS',
     'OPENBLAS_NUM_THREADS',
@@ -132,7 +134,10 @@ def main() -> int:
     if args.only:
         scans = [path for path in scans if args.only in path.stem]
     if not scans:
-        print(f'no scans in {SHARED_DATA / "scans"}', file=sys.stderr)
+        print(
+            missing(SHARED_DATA / 'scans') or f'no scans in {SHARED_DATA / "scans"}',
+            file=sys.stderr,
+        )
         return 1
     header = ['scan', 'kept', 'boxes', 'grasps']
     for count in counts:

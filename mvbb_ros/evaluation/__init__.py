@@ -18,4 +18,5 @@ truth (issues 15 and 16, ``benchmarks/views.py``, ``docs/single_views.md``):
 :mod:`~mvbb_ros.evaluation.views` (whole meshes on a table, their views, the real scans),
 :mod:`~mvbb_ros.evaluation.coverage` (boxes against the whole mesh) and
 :mod:`~mvbb_ros.evaluation.grasp_judge` (does a grasp hold on it; steadiness).
+:mod:`~mvbb_ros.evaluation.shared_data` finds the shared real data for the benchmarks and tests.
 """

@@ -9,11 +9,11 @@ is absent.
 from __future__ import annotations
 
 import importlib.util
-import os
 from pathlib import Path
 import sys
 from types import ModuleType
 
+from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 import numpy as np
 import pytest
 
@@ -32,15 +32,16 @@ def load_benchmark(name: str) -> ModuleType:
     return module
 
 
-#: The shared real data (models, scans, bags); override with MVBB_SHARED_DATA.
-SHARED_DATA = Path(os.environ.get('MVBB_SHARED_DATA', REPO_ROOT.parent / 'shared' / 'data'))
+#: The shared real data (models, scans, bags): :func:`shared_data_folder`'s rule.
+SHARED_DATA = shared_data_folder(REPO_ROOT)
 
 
 def require_shared_data(*relative: str) -> Path:
     """Return SHARED_DATA / relative, or skip the test with a message saying what is missing."""
     path = SHARED_DATA.joinpath(*relative)
-    if not path.exists():
-        pytest.skip(f'shared data not found: {path} (set MVBB_SHARED_DATA to its folder)')
+    reason = missing(path)
+    if reason is not None:
+        pytest.skip(reason)
     return path
 
 
