@@ -20,14 +20,14 @@ import itertools
 
 from mvbb_ros.arrays import FloatArray, IndexArray, perpendicular_axes
 from mvbb_ros.geometry.views.cells import cell_grid, cell_start, column_keys, search_tree
-from mvbb_ros.geometry.views.raster import view_raster
+from mvbb_ros.geometry.views.raster import raster_grid
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, cKDTree, QhullError
 
 #: Two clusters closer than this many cluster tolerances, touching in the view, are one object.
 #: Measured on the shared real scans: pieces of one object separated by self-occlusion or an
@@ -274,10 +274,11 @@ def _join_pieces(
     pieces = np.flatnonzero(sizes >= min_points)
     if len(pieces) < 2:
         return labels
-    raster = view_raster(points, viewpoint, spacing)
-    cells, _ = raster.locate(points)
+    # Only which cell of the view each point falls in: the view's outline is not needed.
+    grid = raster_grid(points, viewpoint, spacing)
+    cells, _ = grid.cells(points)
     seen = cells[:, 0] >= 0
-    shape = raster.mask.shape
+    shape = (grid.rows, grid.cols)
     # Each piece's outline, grown by two cells, as sorted flat cell numbers; the growing runs
     # on the piece's own window of the raster, so a frame of many pieces stays linear.
     members = dict(zip(np.unique(labels).tolist(), _members(labels), strict=True))
@@ -306,13 +307,19 @@ def _join_pieces(
         label: set(np.unique(outline_labels[np.isin(outline_cells, grown[label])]).tolist())
         for label in pieces.tolist()
     }
-    trees = {label: search_tree(points[members[label]]) for label in pieces.tolist()}
+    trees: dict[int, cKDTree] = {}
+
+    def tree(label: int) -> cKDTree:  # only the pieces of a pair that touch in the view
+        if label not in trees:
+            trees[label] = search_tree(points[members[label]])
+        return trees[label]
+
     gap = PIECE_GAP_FACTOR * tolerance
     edges = []
     for first, second in itertools.combinations(pieces.tolist(), 2):
         if second not in reaches[first]:
             continue
-        smaller, larger = sorted((first, second), key=lambda label: trees[label].n)
+        smaller, larger = sorted((first, second), key=lambda label: tree(label).n)
         distance, _ = trees[larger].query(trees[smaller].data, distance_upper_bound=gap)
         if not np.any(np.isfinite(distance)):
             continue

@@ -304,6 +304,57 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
     :param spacing: distance between neighbouring points (the voxel size), metres, > 0.
     :raises ValueError: when the points surround the viewpoint (no viewing direction).
     """
+    grid = raster_grid(points, viewpoint, spacing)
+    index, ranges = grid.cells(grid.points)
+    mask, near = _outline(index, ranges, grid.rows, grid.cols)
+    oblique = _oblique_ranges(mask, near, grid.cell, GRAZING_SLOPE, grid.margin)
+    return ViewRaster(grid.viewpoint, grid.frame, grid.origin, grid.cell, mask, near, oblique)
+
+
+@dataclass(frozen=True, eq=False)
+class RasterGrid:
+    """
+    The cells of a view before anything is drawn in them (:func:`raster_grid`).
+
+    :ivar points: (N, 3) the points the grid was made for, float64.
+    :ivar viewpoint: (3,) the sensor position.
+    :ivar frame: (3, 3) rows: the image's two axes and the viewing direction.
+    :ivar origin: (2,) the tangent-plane coordinates of cell (0, 0)'s corner.
+    :ivar cell: the cell's width in the tangent plane (radians, about).
+    :ivar rows: the grid's rows.
+    :ivar cols: the grid's columns.
+    :ivar margin: cells of room around the points' outline.
+    """
+
+    points: FloatArray
+    viewpoint: FloatArray
+    frame: FloatArray
+    origin: FloatArray
+    cell: float
+    rows: int
+    cols: int
+    margin: int
+
+    def cells(self, points: FloatArray) -> tuple[IndexArray, FloatArray]:
+        """Return each point's (row, col), (-1, -1) outside, and its range (:meth:`locate`)."""
+        return _cells(
+            np.ascontiguousarray(points, dtype=np.float64),
+            self.viewpoint,
+            self.frame,
+            self.origin,
+            self.cell,
+            self.rows,
+            self.cols,
+        )
+
+
+def raster_grid(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> RasterGrid:
+    """
+    Return the cells :func:`view_raster` draws `points` in (its arguments; nothing drawn).
+
+    For a caller that needs only which cell each point falls in (:meth:`RasterGrid.cells`, the
+    same cells as :meth:`ViewRaster.locate` of the raster of the same points).
+    """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     eye = np.asarray(viewpoint, dtype=np.float64)
     axis = pts.mean(axis=0) - eye
@@ -332,11 +383,7 @@ def view_raster(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> View
     margin = max(4, min(MAX_GRAZING_CELLS, math.ceil(reach)))
     origin = column_min(tangent) - margin * cell
     shape = np.ceil((column_max(tangent) - origin) / cell).astype(np.int64) + margin + 1
-    rows, cols = int(shape[0]), int(shape[1])
-    index, ranges = _cells(pts, eye, frame, origin, cell, rows, cols)
-    mask, near = _outline(index, ranges, rows, cols)
-    oblique = _oblique_ranges(mask, near, cell, GRAZING_SLOPE, margin)
-    return ViewRaster(eye, frame, origin, cell, mask, near, oblique)
+    return RasterGrid(pts, eye, frame, origin, cell, int(shape[0]), int(shape[1]), margin)
 
 
 def behind_others(points: FloatArray, raster: ViewRaster, gap: float) -> BoolArray:
