@@ -641,8 +641,11 @@ def find_scene(
             )
             continue
         # A table in front of a wall stands on the wall: a large plane among the standing points
-        # says that this plane is the wall.
-        other = _next_plane(standing, np.ones(len(kept), dtype=bool), distance, None, eye, cell)
+        # says that this plane is the wall (none when too few points stand on it to make one).
+        other = None
+        if len(kept) >= WALL_SHARE * len(candidate.patch):
+            whole = np.ones(len(kept), dtype=bool)
+            other = _next_plane(standing, whole, distance, None, eye, cell)
         if (
             other is not None
             and len(other.patch) >= WALL_SHARE * len(candidate.patch)
