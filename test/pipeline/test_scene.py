@@ -251,3 +251,40 @@ def test_the_whole_cloud_cut_agrees_with_the_scene_stage(seed):
     # float32 points (as decoded) give the same cut but for points on its edges.
     single = standing_mask(points.astype(np.float32), scene.support, settings)
     assert np.count_nonzero(single != standing_mask(points, scene.support, settings)) <= 3
+
+
+def _grid(low: tuple[float, float], high: tuple[float, float], step: float) -> np.ndarray:
+    first, second = (np.arange(a, b + 1e-9, step) for a, b in zip(low, high, strict=True))
+    return np.stack(np.meshgrid(first, second, indexing='ij'), axis=-1).reshape(-1, 2)
+
+
+def test_a_table_in_front_of_a_larger_wall_is_the_support_not_the_wall():
+    """
+    Without an up direction the largest plane is the wall, and the table stands on it: a plane
+    with another wide plane standing on it is a wall, and the table in front is the support.
+    """
+    step = 0.01
+    wall = _grid((-0.8, 0.0), (0.8, 1.2), step)  # x, z on y = 0.6: 19,481 points
+    table = _grid((-0.5, -0.2), (0.5, 0.55), step)  # x, y on z = 0.4: 7,676 points
+    box = _grid((-0.04, 0.16), (0.04, 0.24), step / 2)  # the top of a 10 cm tall box
+    side = _grid((-0.04, 0.41), (0.04, 0.5), step / 2)  # its front face, on y = 0.16
+    points = np.concatenate(
+        [
+            np.column_stack([wall[:, 0], np.full(len(wall), 0.6), wall[:, 1]]),
+            np.column_stack([table, np.full(len(table), 0.4)]),
+            np.column_stack([box, np.full(len(box), 0.5)]),
+            np.column_stack([side[:, 0], np.full(len(side), 0.16), side[:, 1]]),
+        ]
+    )
+    points += np.random.default_rng(0).normal(0.0, 0.001, points.shape)
+    scene = find_scene(
+        points,
+        SceneSettings(support_plane='auto'),
+        viewpoint=(0.0, -1.2, 0.9),
+        spacing=step,
+        min_points=25,
+    )
+    support = scene.support
+    assert support is not None, scene.reason
+    assert abs(support.normal @ np.array([0.0, 0.0, 1.0])) > np.cos(np.radians(2.0)), scene.reason
+    assert scene.kept is not None and np.all(points[scene.kept, 2] > 0.41)
