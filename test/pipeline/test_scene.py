@@ -260,8 +260,10 @@ def _grid(low: tuple[float, float], high: tuple[float, float], step: float) -> n
 
 def test_a_table_in_front_of_a_larger_wall_is_the_support_not_the_wall():
     """
-    Without an up direction the largest plane is the wall, and the table stands on it: a plane
-    with another wide plane standing on it is a wall, and the table in front is the support.
+    Take the table, not the larger wall behind it, as the support (no up direction given).
+
+    The largest plane is the wall and the table stands on it: a plane with another wide plane
+    standing on it is a wall, and the table in front of it is the support.
     """
     step = 0.01
     wall = _grid((-0.8, 0.0), (0.8, 1.2), step)  # x, z on y = 0.6: 19,481 points

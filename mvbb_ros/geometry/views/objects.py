@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import ConvexHull, cKDTree, QhullError
+from scipy.spatial import cKDTree, ConvexHull, QhullError
 
 #: Two clusters closer than this many cluster tolerances, touching in the view, are one object.
 #: Measured on the shared real scans: pieces of one object separated by self-occlusion or an
