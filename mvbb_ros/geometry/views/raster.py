@@ -78,15 +78,7 @@ class ViewRaster:
         :return: the cells (N, 2) and the points' ranges from the viewpoint (N,), metres.
         """
         rows, cols = self.mask.shape
-        return _cells(
-            np.ascontiguousarray(points, dtype=np.float64),
-            self.viewpoint,
-            self.frame,
-            self.origin,
-            self.cell,
-            rows,
-            cols,
-        )
+        return _locate(self, points, rows, cols)
 
     def hidden(self, points: FloatArray, tolerance: float) -> BoolArray:
         """
@@ -337,15 +329,15 @@ class RasterGrid:
 
     def cells(self, points: FloatArray) -> tuple[IndexArray, FloatArray]:
         """Return each point's (row, col), (-1, -1) outside, and its range (:meth:`locate`)."""
-        return _cells(
-            np.ascontiguousarray(points, dtype=np.float64),
-            self.viewpoint,
-            self.frame,
-            self.origin,
-            self.cell,
-            self.rows,
-            self.cols,
-        )
+        return _locate(self, points, self.rows, self.cols)
+
+
+def _locate(
+    view: ViewRaster | RasterGrid, points: FloatArray, rows: int, cols: int
+) -> tuple[IndexArray, FloatArray]:
+    """Return :func:`_cells` of `points` in `view`'s grid of `rows` x `cols` cells."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    return _cells(pts, view.viewpoint, view.frame, view.origin, view.cell, rows, cols)
 
 
 def raster_grid(points: ArrayLike, viewpoint: ArrayLike, spacing: float) -> RasterGrid:
