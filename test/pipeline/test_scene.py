@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 from mvbb_ros.arrays import perpendicular_axes
@@ -192,6 +192,9 @@ def test_the_plane_faces_the_sensor_and_its_outline_holds_its_points(
 
 @hypothesis_settings(max_examples=15, deadline=None)
 @given(tilt=st.floats(0.0, 40.0), turn=st.floats(0.0, 360.0), seed=st.integers(0, 1000))
+# A RANSAC plane slicing the table at 13 degrees across the box, refitted once, passed here.
+@example(tilt=26.0, turn=0.0, seed=0)
+@example(tilt=23.0, turn=45.0, seed=6)
 def test_with_up_given_only_a_level_plane_is_a_support(tilt, turn, seed):
     """
     A plane tilted past MAX_TILT_DEG from the given up is no support, whatever else it passes.
