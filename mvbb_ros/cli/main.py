@@ -381,12 +381,18 @@ def decompose_and_report(
         print(f'wrote {json_path}')
     if png_path is not None:
         # Deferred: matplotlib, only when a picture is asked for.
-        from mvbb_ros.cli.render import render_boxes
+        from mvbb_ros.cli.render import ground_frame, render_boxes
 
         observed = np.concatenate(
             [item.shape.points[: item.shape.observed] for item in result.objects]
         )
-        render_boxes(png_path, observed, result.leaves, grasps=result.grasps, title=title)
+        # A scene stands on its table: the views look down onto it and from the sensor's side.
+        frame: str | np.ndarray = 'box'
+        if result.support is not None:
+            frame = ground_frame(result.support.normal, settings.view.viewpoint, observed)
+        render_boxes(
+            png_path, observed, result.leaves, grasps=result.grasps, title=title, frame=frame
+        )
         print(f'wrote {png_path}')
 
 

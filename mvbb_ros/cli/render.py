@@ -34,7 +34,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure, SubFigure
 from matplotlib.lines import Line2D
 from matplotlib.text import Annotation
-from mvbb_ros.arrays import cross
+from mvbb_ros.arrays import cross, perpendicular_axes
 from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.geometry.box import EDGES
 from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
@@ -251,6 +251,33 @@ def _frame_rotation(
             axes[:, k] = -axes[:, k]
     axes[:, 2] = cross(axes[:, 0], axes[:, 1])
     return axes
+
+
+def ground_frame(up: ArrayLike, viewpoint: ArrayLike, points: ArrayLike) -> FloatArray:
+    """
+    Return a view frame standing on the ground: its third axis `up`, its second the sensor's.
+
+    The columns are (right, forward, up) in data coordinates: forward is the direction from
+    `viewpoint` to the points' centroid, made horizontal (any horizontal direction when the
+    sensor looks straight down). With it, 'top' looks down onto the table and 'front' looks
+    from the sensor's side; the axes do not depend on the points' own extents, so two pictures
+    of nearly the same scene keep their orientation.
+
+    :param up: (3,) the up direction (need not be unit).
+    :param viewpoint: (3,) the sensor position.
+    :param points: (N, 3) the points drawn, N >= 1.
+    """
+    third = np.asarray(up, dtype=np.float64)
+    third = third / np.linalg.norm(third)
+    centre = np.asarray(points, dtype=np.float64).reshape(-1, 3).mean(axis=0)
+    forward = centre - np.asarray(viewpoint, dtype=np.float64)
+    forward = forward - (forward @ third) * third
+    length = float(np.linalg.norm(forward))
+    if length <= 1e-9 * max(1.0, float(np.linalg.norm(centre))):
+        forward = perpendicular_axes(third)[0]
+    else:
+        forward = forward / length
+    return np.column_stack([cross(forward, third), forward, third])
 
 
 def _box_corners(boxes: Sequence[Box]) -> FloatArray:

@@ -109,3 +109,32 @@ def test_an_output_that_cannot_be_written_is_one_line(cloud, tmp_path):
     errors = [line for line in result.stderr.splitlines() if 'error' in line]
     assert len(errors) == 1 and 'not_a_folder' in errors[0], result.stderr
     assert blocker.read_text() == 'a file where the output folder should be'
+
+
+@pytest.mark.parametrize('scene', [True, False])
+def test_a_scenes_picture_stands_on_its_table_and_an_objects_on_its_box(
+    scene, monkeypatch, tmp_path
+):
+    """With a table found the views look down onto it; a segmented object keeps its box frame."""
+    from mvbb_ros.cli import main as cli_main
+    from mvbb_ros.cli import render
+    from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
+    from mvbb_ros.pipeline.settings import PipelineSettings
+
+    frames = []
+    monkeypatch.setattr(render, 'render_boxes', lambda *_, **options: frames.append(options))
+    if scene:
+        grid = table_top_frame(1, 2)
+        points = grid.points.reshape(-1, 3)
+        points = points[np.isfinite(points).all(axis=1)]
+    else:
+        points = segmented_object_cloud('mug', seed=0)
+    cli_main.decompose_and_report(
+        points, PipelineSettings(), json_path=None, png_path=tmp_path / 'p.png', title='t'
+    )
+    (frame,) = [options['frame'] for options in frames]
+    if scene:
+        truth = grid.table_plane[:3] / np.linalg.norm(grid.table_plane[:3])
+        assert np.degrees(np.arccos(min(1.0, float(frame[:, 2] @ truth)))) < 2.0
+    else:
+        assert frame == 'box'

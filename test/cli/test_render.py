@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 import os
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from matplotlib.figure import Figure
 import matplotlib.image as mpimg
 from mvbb_ros.cli import render
@@ -209,3 +211,32 @@ def test_scale_bar_lengths_are_round_numbers():
     assert render._format_length(0.05, 'm') == '5 cm'
     assert render._format_length(0.002, 'm') == '2 mm'
     assert render._format_length(20.0, 'mm') == '20 mm'
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).filter(
+        lambda v: np.linalg.norm(v) > 0.1
+    ),
+    st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3),
+    st.integers(0, 2**16),
+)
+def test_the_ground_frame_stands_on_up_and_faces_away_from_the_sensor(up, eye, seed):
+    """Columns right, forward, up: orthonormal, right-handed, forward level and away from eye."""
+    points = np.random.default_rng(seed).normal(0.0, 0.3, (50, 3))
+    frame = render.ground_frame(up, eye, points)
+    unit_up = np.asarray(up) / np.linalg.norm(up)
+    np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-9)
+    assert np.linalg.det(frame) == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(frame[:, 2], unit_up, atol=1e-12)
+    sight = points.mean(axis=0) - np.asarray(eye)
+    level = sight - (sight @ unit_up) * unit_up
+    if np.linalg.norm(level) > 1e-6:
+        assert frame[:, 1] @ level == pytest.approx(np.linalg.norm(level), rel=1e-6)
+
+
+def test_a_sensor_looking_straight_down_still_gets_a_ground_frame():
+    points = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [-0.1, 0.0, 0.0]])
+    frame = render.ground_frame((0.0, 0.0, 1.0), (0.0, 0.0, 1.5), points)
+    np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(frame[:, 2], [0.0, 0.0, 1.0])
