@@ -40,6 +40,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.pipeline.decode',
     'mvbb_ros.pipeline.filtering',
     'mvbb_ros.pipeline.outliers',
+    'mvbb_ros.pipeline.density',
     'mvbb_ros.pipeline.scene',
     'mvbb_ros.geometry.boxfit.rectangle',
     'mvbb_ros.geometry.boxfit.hull',

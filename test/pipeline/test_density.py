@@ -11,6 +11,7 @@ from mvbb_ros.pipeline.filtering import filter_points
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -117,3 +118,51 @@ def test_the_same_finer_points_with_any_number_of_workers():
     two = process_points(small, replace(node, execution=replace(node.execution, workers=2)))
     np.testing.assert_array_equal(one.objects[0].shape.points, two.objects[0].shape.points)
     assert [g.position.tolist() for g in one.grasps] == [g.position.tolist() for g in two.grasps]
+
+
+def _reference_near(observed: np.ndarray, raw: np.ndarray, voxel: float) -> np.ndarray:
+    """The raw points in the object's bounds within a voxel's diagonal of it: every one queried."""
+    reach = voxel * np.sqrt(3.0)
+    low, high = observed.min(axis=0) - reach, observed.max(axis=0) + reach
+    region = np.asarray(raw[np.all((raw >= low) & (raw <= high), axis=1)], dtype=np.float64)
+    distances, _ = cKDTree(observed).query(region, distance_upper_bound=reach)
+    return region[np.isfinite(distances)]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    size=st.floats(0.03, 0.12),
+    voxel=st.floats(0.002, 0.008),
+    stray=st.integers(0, 300),
+    dtype=st.sampled_from([np.float32, np.float64]),
+    grid_cells=st.sampled_from([4_000_000, 1]),
+)
+def test_the_points_near_the_object_are_those_every_query_finds(
+    seed, size, voxel, stray, dtype, grid_cells
+):
+    """Points sharing a cell with the object's need no query: the same points, the same result."""
+    from mvbb_ros.pipeline import density
+
+    rng = np.random.default_rng(seed)
+    shape = rng.uniform(0.3, 1.0, 3) * size
+    raw = box_surface(tuple(shape), voxel / 4.0, seed % 1000)
+    # Stray points in and around it (a neighbour's, noise): near the object and farther than
+    # a voxel's diagonal from it (inside the box, well within its bounds).
+    strays = rng.uniform(-0.2, 1.2, (stray, 3)) * shape + (0.0, 0.0, 0.6)
+    raw = np.concatenate([raw, strays]).astype(dtype)
+    observed, _ = filter_points(raw, voxel_size=voxel, outlier_neighbors=8)
+    captured = {}
+
+    def capture(points, **options):
+        captured['near'] = points
+        return filter_points(points, **options)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(density, 'MAX_NEAR_CELLS', grid_cells)  # 1: every point queried
+        patch.setattr(density, 'filter_points', capture)
+        finer = density.finer_object_points(observed, raw, voxel, 80, 0.0005, 8, 2.0)
+    assert 'near' in captured  # 80 voxels across: always finer
+    assert finer is None or len(finer.points)
+    expected = _reference_near(observed, raw, voxel)
+    assert captured['near'].tobytes() == expected.tobytes()
