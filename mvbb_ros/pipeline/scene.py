@@ -578,9 +578,15 @@ def _standing(
     offset: float,
     outline: FloatArray,
     settings: SceneSettings,
+    heights: FloatArray | None = None,
 ) -> BoolArray:
-    """Tell which `points` stand on the plane, inside its (2D) `outline`."""
-    heights = points @ normal + offset
+    """
+    Tell which `points` stand on the plane, inside its (2D) `outline`.
+
+    :param heights: ``points @ normal + offset`` when already measured, else None.
+    """
+    if heights is None:
+        heights = points @ normal + offset
     standing = (heights > settings.support_distance) & (heights <= settings.support_max_height)
     candidates = np.flatnonzero(standing)
     flat = points[candidates] @ _frame(normal).T
@@ -640,9 +646,17 @@ def find_scene(
             tilt = math.degrees(math.acos(min(1.0, abs(float(normal @ unit_up)))))
             reasons.append(f'plane {number}: tilted {tilt:.0f} deg from up_direction')
             continue
+        heights = points @ normal + offset
+        if min_points > 0 and not np.any(
+            (heights > settings.support_distance) & (heights <= settings.support_max_height)
+        ):
+            # Nothing above it at all (a segmented object's face, the object behind it): no
+            # outline needed to say that nothing stands on it.
+            reasons.append(f'plane {number}: 0 points stand on it')
+            continue
         frame = _frame(normal)
         outline = _outline_2d(points[candidate.patch] @ frame.T)
-        kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))
+        kept = np.flatnonzero(_standing(points, normal, offset, outline, settings, heights))
         if len(kept) < min_points:
             reasons.append(f'plane {number}: {len(kept)} points stand on it')
             continue

@@ -293,3 +293,20 @@ def test_a_table_in_front_of_a_larger_wall_is_the_support_not_the_wall():
     assert support is not None, scene.reason
     assert abs(support.normal @ np.array([0.0, 0.0, 1.0])) > np.cos(np.radians(2.0)), scene.reason
     assert scene.kept is not None and np.all(points[scene.kept, 2] > 0.41)
+
+
+def test_an_objects_face_with_the_object_behind_it_holds_nothing_standing():
+    """A segmented box seen from the front: its face is the largest plane, and no support."""
+    step = 0.005
+    front = _grid((-0.1, -0.1), (0.1, 0.1), step)  # x, z on y = 0.5, facing the sensor
+    top = _grid((-0.1, 0.5 + step), (0.1, 0.6), step)  # x, y on z = 0.1, behind the face
+    points = np.concatenate(
+        [
+            np.column_stack([front[:, 0], np.full(len(front), 0.5), front[:, 1]]),
+            np.column_stack([top, np.full(len(top), 0.1)]),
+        ]
+    )
+    scene = find_scene(points, SceneSettings(support_plane='auto'), spacing=step, min_points=10)
+    assert scene.support is None and scene.kept is None
+    assert scene.reason is not None
+    assert scene.reason.startswith('no support: plane 0: 0 points stand on it'), scene.reason
