@@ -69,7 +69,9 @@ DEFAULT_DATA = shared_data_folder()
 #: Grasps tried per view and contender ("one of the top five").
 TOP_K = 5
 #: Every contender, in table order.
-CONTENDERS = ('node', 'node_scene', 'paper', 'primitive', 'cgn')
+CONTENDERS = ('node', 'node_scene', 'node_lighter', 'paper', 'primitive', 'cgn')
+#: Contenders run only when named in ``--contenders``.
+ON_REQUEST = ('node_lighter',)
 #: The object sets by name (``--meshes DIR`` adds one named after the folder).
 SETS = ('development', 'validation', 'shared')
 #: Quick mode: objects per random set and views per object (about 100 views), and the views
@@ -137,6 +139,22 @@ def node_grasps(view: Any, hand: Any) -> list[Any]:
     from mvbb_ros.pipeline.process import process_points
 
     result = process_points(view.points, pipeline_settings('node', hand, view.up))
+    return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
+
+
+def lighter_grasps(view: Any, hand: Any) -> list[Any]:
+    """
+    Run the node one ``frame_time_budget`` level lighter (as after a frame over the budget).
+
+    The node's settings for the view (:func:`node_grasps`) lightened by the budget's first
+    level (:func:`mvbb_ros.pipeline.budget.degraded`: voxels twice as coarse, no finer voxels
+    for small objects): what a node that keeps up with a fast stream by its budget proposes.
+    """
+    from mvbb_ros.pipeline.budget import degraded
+    from mvbb_ros.pipeline.process import process_points
+
+    settings, _ = degraded(pipeline_settings('node', hand, view.up), 1)
+    result = process_points(view.points, settings)
     return [view.poses_to_world(fingertip_pose(grasp)) for grasp in result.grasps]
 
 
@@ -252,6 +270,7 @@ def node_steadiness(view: Any, hand: Any, frames: int, drift: float) -> tuple[in
 PROPOSERS: dict[str, Callable[[Any, Any], list[Any]]] = {
     'node': node_grasps,
     'node_scene': scene_grasps,
+    'node_lighter': lighter_grasps,
     'paper': paper_grasps,
     'primitive': primitive_contender,
 }
@@ -798,7 +817,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument(
         '--contenders',
-        default=','.join(CONTENDERS),
+        default=','.join(name for name in CONTENDERS if name not in ON_REQUEST),
         help='comma separated, from ' + ', '.join(CONTENDERS),
     )
     parser.add_argument('--seed', type=int, default=0)

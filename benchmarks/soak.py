@@ -50,6 +50,7 @@ WARM_UP_S = 60.0
 #: The topic the clouds go to and the one the answers come from (the node's defaults).
 CLOUD_TOPIC = 'cloud_in'
 BOXES_TOPIC = '/decomposer/boxes'
+DIAGNOSTICS_TOPIC = '/diagnostics'
 #: The variable ROS 2 Jazzy's Fast DDS (2.x) reads its XML profile from.
 PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 
@@ -63,6 +64,9 @@ class Figures:
     latencies_ms: np.ndarray
     memory: list[tuple[float, int]]
     exit_code: int | None
+    #: The node's ``frame_budget_level`` in each of its diagnostics (once a second; empty
+    #: without a ``frame_time_budget``): the level the next cloud runs at.
+    budget_levels: tuple[int, ...] = ()
 
     @property
     def answered(self) -> int:
@@ -146,6 +150,7 @@ def stream(
     """Start `command` on the node's core, stream `frames` into it, and measure the answers."""
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import MarkerArray
 
@@ -168,10 +173,21 @@ def stream(
         if key in sent:
             latencies.append(time.perf_counter() - sent.pop(key))
 
+    levels: list[int] = []
+
+    def on_diagnostics(message: DiagnosticArray) -> None:
+        for status in message.status:
+            values = {item.key: item.value for item in status.values}
+            if status.name.startswith('decomposer') and 'frame_budget_level' in values:
+                levels.append(int(values['frame_budget_level']))
+
     reliable = QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
     )
     subscription = client.create_subscription(MarkerArray, BOXES_TOPIC, on_boxes, reliable)
+    diagnostics = client.create_subscription(
+        DiagnosticArray, DIAGNOSTICS_TOPIC, on_diagnostics, reliable
+    )
     publisher = client.create_publisher(
         PointCloud2,
         CLOUD_TOPIC,
@@ -225,8 +241,9 @@ def stream(
         node.send_signal(signal.SIGINT)
         exit_code = node.wait(timeout=30)
         client.destroy_subscription(subscription)
+        client.destroy_subscription(diagnostics)
         client.destroy_publisher(publisher)
-    return Figures(elapsed, count, np.array(latencies) * 1e3, memory, exit_code)
+    return Figures(elapsed, count, np.array(latencies) * 1e3, memory, exit_code, tuple(levels))
 
 
 def report(name: str, figures: Figures) -> None:
@@ -247,6 +264,10 @@ def report(name: str, figures: Figures) -> None:
         + ', '.join(f'{seconds:.0f} s {rss / 2**20:.1f}' for seconds, rss in figures.memory)
     )
     print(f'  memory growth after the warm-up (peaks): {100.0 * figures.growth:+.1f}%')
+    if figures.budget_levels:
+        seconds = np.bincount(figures.budget_levels)
+        spread = ', '.join(f'{level}: {int(n)}' for level, n in enumerate(seconds) if n)
+        print(f'  frame_time_budget level, seconds at each (from /diagnostics): {spread}')
     print(f'  exit code on SIGINT: {figures.exit_code}')
 
 

@@ -130,7 +130,7 @@ def test_grasp_matrix_follows_the_convention():
         grasp_matrix([0, 0, 0], [0, 0, 1], [0, 0, 2])
 
 
-@pytest.mark.parametrize('contender', ['node', 'node_scene', 'paper', 'primitive'])
+@pytest.mark.parametrize('contender', ['node', 'node_scene', 'node_lighter', 'paper', 'primitive'])
 def test_the_contenders_world_poses_land_on_the_object(bench, placed, views, contender):
     propose = bench.PROPOSERS[contender]
     for view in views:

@@ -62,3 +62,14 @@ def test_the_decomposers_parameters_reach_its_command_line_as_ros_arguments(soak
     for bad in ('workers=1', ':=1', 'workers:='):
         with pytest.raises(ValueError, match='NAME:=VALUE'):
             soak.decomposer_command(executable, [bad])
+
+
+def test_the_report_says_how_long_the_node_ran_at_each_budget_level(soak, capsys):
+    memory = [(0.0, 100.0 * MIB), (60.0, 100.0 * MIB)]
+    lighter = soak.Figures(60.0, 1800, np.array([20.0, 30.0]), memory, 0, (0, 1, 2, 2, 2))
+    soak.report('decomposer', lighter)
+    assert 'budget level, seconds at each (from /diagnostics): 0: 1, 1: 1, 2: 3' in (
+        capsys.readouterr().out
+    )
+    soak.report('decomposer', _figures(soak, memory))
+    assert 'budget level' not in capsys.readouterr().out
