@@ -7,7 +7,9 @@ than :data:`RECOVER_FRACTION` of it, one level less light. The levels degrade in
 each keeping the ones before it (:func:`degraded`):
 
 1. coarser voxels: ``voxel_size`` doubled (from :data:`BASE_VOXEL_M` when the grid is off), and
-   no finer voxels for small objects (``object_voxel_cells`` 0);
+   small objects sampled at half as many voxels across (``object_voxel_cells`` halved: the
+   same objects as before get their own finer voxels, so no new one is sampled again; turning
+   them off instead cost a fifth of the grasps that lift an object, ``docs/performance.md``);
 2. fewer objects: ``max_objects`` halved (from :data:`BASE_CAP` when every object is kept);
 3. fewer grasp candidates: ``max_boxes`` halved (from :data:`BASE_CAP` when unbounded): each
    leaf box gives at most six face candidates;
@@ -55,8 +57,9 @@ def degraded(settings: PipelineSettings, level: int) -> tuple[PipelineSettings, 
         filtering = replace(filtering, voxel_size=new)
         changes.append(f'voxel_size {old:g} -> {new:g} m')
         if view.object_voxel_cells:
-            changes.append(f'object_voxel_cells {view.object_voxel_cells} -> 0')
-            view = replace(view, object_voxel_cells=0)
+            cells = view.object_voxel_cells >> rounds[0]
+            changes.append(f'object_voxel_cells {view.object_voxel_cells} -> {cells}')
+            view = replace(view, object_voxel_cells=cells)
     if rounds[1]:
         old_objects = view.max_objects
         new_objects = max(1, (old_objects or BASE_CAP) >> rounds[1])

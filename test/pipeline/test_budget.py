@@ -30,9 +30,14 @@ def test_the_levels_degrade_in_the_stated_order():
         lighter, changes = degraded(node, level)
         got = (lighter.filtering.voxel_size, lighter.view.max_objects)
         assert got + (lighter.decomposition.max_boxes,) == (voxel, objects, boxes), level
-        # The first level also stops sampling small objects finer (object_voxel_cells 0).
+        # Small objects keep their own finer voxels, at half (then a quarter of) the cells
+        # across: the objects under that many voxels are the same ones as without a budget.
         assert len(changes) == min(level, 3) + 1
-        assert lighter.view.object_voxel_cells == 0
+        rounds = 1 if level < 4 else 2
+        assert lighter.view.object_voxel_cells == node.view.object_voxel_cells >> rounds
+        assert f'object_voxel_cells 20 -> {20 >> rounds}' in changes
+        extent = lighter.view.object_voxel_cells * lighter.filtering.voxel_size
+        assert extent == node.view.object_voxel_cells * node.filtering.voxel_size
         assert lighter.grasps == node.grasps and lighter.refinement == node.refinement
     with pytest.raises(ValueError, match='level'):
         degraded(node, MAX_LEVEL + 1)
