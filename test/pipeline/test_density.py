@@ -121,7 +121,7 @@ def test_the_same_finer_points_with_any_number_of_workers():
 
 
 def _reference_near(observed: np.ndarray, raw: np.ndarray, voxel: float) -> np.ndarray:
-    """The raw points in the object's bounds within a voxel's diagonal of it: every one queried."""
+    """Return the raw points in the bounds within a voxel's diagonal of `observed`, all queried."""
     reach = voxel * np.sqrt(3.0)
     low, high = observed.min(axis=0) - reach, observed.max(axis=0) + reach
     region = np.asarray(raw[np.all((raw >= low) & (raw <= high), axis=1)], dtype=np.float64)
