@@ -13,6 +13,7 @@ BIN := $(VENV)/bin
 # needing Open3D or rclpy skip there.
 COMPAT_TESTS := test/pipeline/test_decode.py test/pipeline/test_filtering.py \
 	test/pipeline/test_outliers.py test/pipeline/test_scene_kernels.py \
+	test/pipeline/test_density.py \
 	test/geometry/views/test_cells.py test/geometry/views/test_objects.py \
 	test/geometry/views/test_completion.py test/geometry/boxfit/test_fit.py \
 	test/geometry/decomposition/test_split.py test/geometry/grasping/test_surface.py \

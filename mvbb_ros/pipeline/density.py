@@ -143,6 +143,7 @@ def _near_in_own_cell(
     near = np.zeros(count, dtype=np.bool_)
     low = np.empty(3)
     spans = np.empty(3, dtype=np.int64)
+    cells = 1
     for axis in range(3):
         low[axis] = anchors[0, axis]
         high = anchors[0, axis]
@@ -153,9 +154,10 @@ def _near_in_own_cell(
         if not extent < max_cells:
             return near
         spans[axis] = int(extent) + 1
-    if spans[0] * spans[1] * spans[2] > max_cells:
-        return near
-    first = np.full(spans[0] * spans[1] * spans[2], -1, dtype=np.int64)
+        cells *= spans[axis]  # at most max_cells squared: no overflow
+        if cells > max_cells:
+            return near
+    first = np.full(cells, -1, dtype=np.int64)
     for j in range(anchors.shape[0]):
         key = 0
         for axis in range(3):
