@@ -207,6 +207,21 @@ def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int
         if not length > 0.0:
             return 0.0, 1.0, 0.0
         return 0.0, dx / length, dy / length
+    # The polygon's corners and edge vectors in contiguous arrays: the pointers below step
+    # through them without going through `polygon` (the same differences, so the same result).
+    corner_x = np.empty(size)
+    corner_y = np.empty(size)
+    edge_x = np.empty(size)
+    edge_y = np.empty(size)
+    for i in range(size):
+        corner_x[i] = x[polygon[i]]
+        corner_y[i] = y[polygon[i]]
+    last = size - 1
+    for i in range(last):
+        edge_x[i] = corner_x[i + 1] - corner_x[i]
+        edge_y[i] = corner_y[i + 1] - corner_y[i]
+    edge_x[last] = corner_x[0] - corner_x[last]
+    edge_y[last] = corner_y[0] - corner_y[last]
     best = np.inf
     best_x = 1.0
     best_y = 0.0
@@ -214,46 +229,34 @@ def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int
     right = 1
     top = 1
     left = 1
-    last = size - 1
     for i in range(size):
-        p = polygon[i]
-        q = polygon[i + 1] if i < last else polygon[0]
-        ex = x[q] - x[p]
-        ey = y[q] - y[p]
+        ex = edge_x[i]
+        ey = edge_y[i]
         squared = ex * ex + ey * ey
         if not squared > 0.0:
             continue
         # Farthest along the edge, then farthest from it, then farthest back.
         for _ in range(size):
-            a = polygon[right]
-            b = polygon[right + 1] if right < last else polygon[0]
-            if ex * (x[b] - x[a]) + ey * (y[b] - y[a]) > 0.0:
+            if ex * edge_x[right] + ey * edge_y[right] > 0.0:
                 right = right + 1 if right < last else 0
             else:
                 break
         if i == 0:
             top = right
         for _ in range(size):
-            a = polygon[top]
-            b = polygon[top + 1] if top < last else polygon[0]
-            if ex * (y[b] - y[a]) - ey * (x[b] - x[a]) > 0.0:
+            if ex * edge_y[top] - ey * edge_x[top] > 0.0:
                 top = top + 1 if top < last else 0
             else:
                 break
         if i == 0:
             left = top
         for _ in range(size):
-            a = polygon[left]
-            b = polygon[left + 1] if left < last else polygon[0]
-            if ex * (x[b] - x[a]) + ey * (y[b] - y[a]) < 0.0:
+            if ex * edge_x[left] + ey * edge_y[left] < 0.0:
                 left = left + 1 if left < last else 0
             else:
                 break
-        r = polygon[right]
-        t = polygon[top]
-        lo = polygon[left]
-        along = ex * (x[r] - x[lo]) + ey * (y[r] - y[lo])
-        across = ex * (y[t] - y[p]) - ey * (x[t] - x[p])
+        along = ex * (corner_x[right] - corner_x[left]) + ey * (corner_y[right] - corner_y[left])
+        across = ex * (corner_y[top] - corner_y[i]) - ey * (corner_x[top] - corner_x[i])
         area = along * across
         # Compare along * across / squared without dividing: a * squared_best < best * squared.
         if area < best * squared:
