@@ -60,7 +60,7 @@ def _fibonacci_half_sphere(count: int) -> np.ndarray:
 
 
 @nb.njit
-def _walk(vertices, normals, edges, edge_facets, work, frame, volume):
+def _walk(vertices, work, frame, volume):
     """Pattern search of the box's first axis on the sphere, each axis in turn the pivot."""
     trial = np.empty((3, 3))
     best_frame = frame.copy()
@@ -70,9 +70,6 @@ def _walk(vertices, normals, edges, edge_facets, work, frame, volume):
         for column in (1, 2):
             found = rotate_about(
                 vertices,
-                normals,
-                edges,
-                edge_facets,
                 work,
                 best_frame[0, column],
                 best_frame[1, column],
@@ -94,17 +91,7 @@ def _walk(vertices, normals, edges, edge_facets, work, frame, volume):
                 y = ay + c * best_frame[1, 1] + s * best_frame[1, 2]
                 z = az + c * best_frame[2, 1] + s * best_frame[2, 2]
                 norm = math.sqrt(x * x + y * y + z * z)
-                found = rotate_about(
-                    vertices,
-                    normals,
-                    edges,
-                    edge_facets,
-                    work,
-                    x / norm,
-                    y / norm,
-                    z / norm,
-                    trial,
-                )
+                found = rotate_about(vertices, work, x / norm, y / norm, z / norm, trial)
                 if found < volume * (1.0 - 1e-12):
                     volume = found
                     copy_frame(trial, best_frame)
@@ -120,22 +107,18 @@ def _walk(vertices, normals, edges, edge_facets, work, frame, volume):
 @nb.njit
 def _reference_search(vertices, normals, edges, edge_facets, extra, starts):
     """Return the volume and frame of the smallest box found (see the module notes)."""
-    work = new_work(vertices.shape[0], normals.shape[0])
+    work = new_work(vertices, normals, edges, edge_facets)
     count = normals.shape[0] + extra.shape[0]
     volumes = np.empty(count)
     frames = np.empty((count, 3, 3))
     for j in range(count):
         axis = normals[j] if j < normals.shape[0] else extra[j - normals.shape[0]]
-        volumes[j] = rotate_about(
-            vertices, normals, edges, edge_facets, work, axis[0], axis[1], axis[2], frames[j]
-        )
+        volumes[j] = rotate_about(vertices, work, axis[0], axis[1], axis[2], frames[j])
     order = np.argsort(volumes)
     best_volume = np.inf
     best_frame = np.eye(3)
     for i in range(min(starts, count)):
-        volume, frame = _walk(
-            vertices, normals, edges, edge_facets, work, frames[order[i]].copy(), volumes[order[i]]
-        )
+        volume, frame = _walk(vertices, work, frames[order[i]].copy(), volumes[order[i]])
         if volume < best_volume:
             best_volume = volume
             best_frame = frame

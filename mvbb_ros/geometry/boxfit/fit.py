@@ -350,16 +350,10 @@ def fit_kernel(
         planar = np.empty((1, 3, 3))
         copy_frame(_planar_frame(local, widest, middle_axis), planar[0])
         volume = np.array([frame_volume(local, planar[0])])
-        _, frame = polish(
-            local,
-            np.zeros((0, 3)),
-            np.zeros((0, 2), dtype=np.int64),
-            np.zeros((0, 2), dtype=np.int64),
-            new_work(count, 0),
-            planar,
-            volume,
-            max(max_rounds, 3),
-        )
+        # No hull: no edges, so every rotation is the 2D hull of every point's projection.
+        no_edges = np.zeros((0, 2), dtype=np.int64)
+        work = new_work(local, np.zeros((0, 3)), no_edges, no_edges)
+        _, frame = polish(local, work, planar, volume, max(max_rounds, 3))
         copy_frame(frame, frames[used])
         used += 1
     if rank == 3:
@@ -560,10 +554,7 @@ def _add_leaks(
         # walk follows (the later axes' walks, for other basins, were done on the coreset).
         volume, frame = settle(
             vertices,
-            normals,
-            edges,
-            edge_facets,
-            new_work(vertices.shape[0], normals.shape[0]),
+            new_work(vertices, normals, edges, edge_facets),
             frame,
             volume,
             max_rounds,

@@ -8,10 +8,12 @@ hull.
 * For a fixed axis ``a``, the best rotation of the box about ``a`` is the minimum-area rectangle of
   the projection along ``a`` (:mod:`mvbb_ros.geometry.boxfit.rectangle`, rotating calipers). The
   outline of that projection is the hull's *silhouette*: the edges between facets facing along
-  ``a`` and the others, which form one loop. :func:`rotate_about` classes the facets, links the
-  silhouette edges into that loop, walks it (the outline in counter-clockwise order, no sort),
+  ``a`` and the others, which form one loop. :func:`rotate_about` finds the silhouette edges,
+  links them into that loop, walks it (the outline in counter-clockwise order, no sort),
   keeps its convex vertices in one Graham pass and runs the calipers on them. Should rounding break
-  the loop, the 2D hull of every projected hull vertex is used instead.
+  the loop, the 2D hull of every projected hull vertex is used instead. A large hull's edges are
+  binned by their facets' normals (:func:`new_work`), and only the cells whose cone of normals
+  crosses the plane across ``a`` are looked at.
 * A minimal box has a face flush with a hull facet, or adjacent faces flush with hull edges
   (O'Rourke 1985). Candidate axes (:func:`candidate_axes_kernel`) are the PCA axes, the facet
   normals and the normals of planes through two of the longest hull edges, ranked by a lower
@@ -33,7 +35,8 @@ for K = min(F, :data:`SHORTLIST` x candidates) + 66 candidate axes (fewer with t
 of large hulls and the 200-vertex width sample); then about 40 candidates, two per frame and
 polish round (8, 4, 2, 1 frames) and 13 per grid round, and 8 per step of the walks (more where
 they move): 100 to 200 axes,
-O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes). The volume
+O(F + E + S) each for a silhouette of S vertices (about sqrt(H) on smooth shapes), about a third
+of the edges on large hulls (30 % on the shared models: the cells near the silhouette). The volume
 bounds rule out about two fifths of the candidates and some grid directions before they are
 turned (on the parts of the shared scans).
 """
@@ -53,6 +56,19 @@ import numpy as np
 
 #: |unit normal . unit axis| below which a facet counts as seen edge-on along the axis.
 SILHOUETTE_TOLERANCE = 1e-9
+#: Cube-map cells per face side for binning the hull's edges by their facets' normals
+#: (:func:`new_work`): an axis's silhouette edges lie in the cells whose cone of normals
+#: crosses the plane across the axis, a band of the 6 x 4 x 4 cells; the others are skipped.
+SILHOUETTE_CELLS = 4
+#: Edges whose two facets' normals are further apart than this (radians) are kept in a list of
+#: their own, checked for every axis: in a cell they would widen its cone.
+WIDE_EDGE = math.radians(30.0)
+#: Radians added to a cell's cone: far above the rounding of the normals, the axis and the
+#: cone itself (about 1e-8), and its sine (1e-6) far above :data:`SILHOUETTE_TOLERANCE`.
+CONE_SLACK = 1e-6
+#: Edge counts from which hulls are binned; smaller ones keep every edge in one list, whose
+#: check costs less than building the cells.
+BINNED_EDGES_MIN = 1024
 #: Relative volume gain below which polishing stops (far below the 1 % quality target).
 POLISH_TOLERANCE = 1e-5
 #: Cube-map cells per face side for binning facet area vectors in the shadow-area bound.
@@ -121,6 +137,36 @@ def copy_frame(source: np.ndarray, target: np.ndarray) -> None:
 
 
 @nb.njit
+def _cube_cell(x: float, y: float, z: float, cells: int) -> int:
+    """
+    Return the cube-map cell of a non-zero direction: 6 faces of `cells` x `cells` cells.
+
+    The face is the dominant coordinate's axis and sign; the cell, the other two coordinates
+    divided by the dominant one's size, on a `cells` x `cells` grid of [-1, 1]^2.
+    """
+    dominant = 0
+    major = x
+    if abs(y) > abs(x):
+        dominant = 1
+        major = y
+    if abs(z) > abs(major):
+        dominant = 2
+        major = z
+    face = 2 * dominant + (1 if major < 0.0 else 0)
+    if dominant == 0:
+        first, second = y, z
+    elif dominant == 1:
+        first, second = z, x
+    else:
+        first, second = x, y
+    first /= abs(major)
+    second /= abs(major)
+    i = min(max(int((first + 1.0) * (cells / 2.0)), 0), cells - 1)
+    j = min(max(int((second + 1.0) * (cells / 2.0)), 0), cells - 1)
+    return (face * cells + i) * cells + j
+
+
+@nb.njit
 def _cross_into(
     out: np.ndarray, row: int, ax: float, ay: float, az: float, bx: float, by: float, bz: float
 ) -> None:
@@ -169,11 +215,20 @@ def _convex_loop(x: np.ndarray, y: np.ndarray, size: int, polygon: np.ndarray) -
 
 
 @nb.njit
+def _link(
+    tail: int, head: int, following: np.ndarray, silhouette: np.ndarray, size: int, simple: bool
+) -> tuple:
+    """Link a silhouette edge into the loop; a second edge out of one vertex is not simple."""
+    if following[tail] >= 0:
+        return size, False
+    following[tail] = head
+    silhouette[size] = tail
+    return size + 1, simple
+
+
+@nb.njit
 def rotate_about(
     vertices: np.ndarray,
-    normals: np.ndarray,
-    edges: np.ndarray,
-    edge_facets: np.ndarray,
     work: tuple,
     ax: float,
     ay: float,
@@ -186,12 +241,14 @@ def rotate_about(
     The rotation about the axis is the minimum-area rectangle of the hull's projection, whose
     outline is the projection of the silhouette's vertices.
 
-    :param work: reusable arrays (side, following, silhouette, x, y, order, polygon).
+    :param work: the hull's edges and reusable arrays (:func:`new_work`).
     :param frame: (3, 3) receives the box frame; its columns are the axis, the rectangle's first
         side and their cross product.
     :return: the box volume (of the hull vertices).
     """
-    side, following, silhouette, px, py, order, polygon = work
+    following, silhouette, px, py, order, polygon = work[:6]
+    side, normals, edges, edge_facets = work[6:10]
+    cell_start, edge_vertices, edge_normals, cell_centres, cell_limits = work[10:]
     count = vertices.shape[0]
     low = np.inf
     high = -np.inf
@@ -216,22 +273,35 @@ def rotate_about(
     # Silhouette: the edges between facets facing forward (n . a > tolerance) and the others,
     # each directed as in its forward facet, form one loop that projects counter-clockwise
     # onto the outline (seen from +a, with (u, v, a) right-handed).
-    facets = normals.shape[0]
-    for f in range(facets):
-        d = ax * normals[f, 0] + ay * normals[f, 1] + az * normals[f, 2]
-        side[f] = d > SILHOUETTE_TOLERANCE
     size = 0
     simple = True
-    for e in range(edges.shape[0]):
-        forward = side[edge_facets[e, 0]]
-        if forward != side[edge_facets[e, 1]]:
-            a = edges[e, 0] if forward else edges[e, 1]
-            if following[a] >= 0:
-                simple = False
-            else:
-                following[a] = edges[e, 1] if forward else edges[e, 0]
-                silhouette[size] = a
-                size += 1
+    if cell_limits.shape[0] == 0:
+        # A small hull: every facet classed, every edge looked at.
+        for f in range(normals.shape[0]):
+            d = ax * normals[f, 0] + ay * normals[f, 1] + az * normals[f, 2]
+            side[f] = d > SILHOUETTE_TOLERANCE
+        for e in range(edges.shape[0]):
+            forward = side[edge_facets[e, 0]]
+            if forward != side[edge_facets[e, 1]]:
+                tail = edges[e, 0] if forward else edges[e, 1]
+                head = edges[e, 1] if forward else edges[e, 0]
+                size, simple = _link(tail, head, following, silhouette, size, simple)
+    for c in range(cell_limits.shape[0]):
+        # A binned hull: a cell whose cone of normals lies wholly on one side of the plane
+        # across the axis holds no silhouette edge. The same sums as the facets' classes above.
+        dot = ax * cell_centres[c, 0] + ay * cell_centres[c, 1] + az * cell_centres[c, 2]
+        if abs(dot) > cell_limits[c]:
+            continue
+        for e in range(cell_start[c], cell_start[c + 1]):
+            forward = (
+                ax * edge_normals[e, 0] + ay * edge_normals[e, 1] + az * edge_normals[e, 2]
+                > SILHOUETTE_TOLERANCE
+            )
+            back = ax * edge_normals[e, 3] + ay * edge_normals[e, 4] + az * edge_normals[e, 5]
+            if forward != (back > SILHOUETTE_TOLERANCE):
+                tail = edge_vertices[e, 0] if forward else edge_vertices[e, 1]
+                head = edge_vertices[e, 1] if forward else edge_vertices[e, 0]
+                size, simple = _link(tail, head, following, silhouette, size, simple)
     corners = 0
     if simple and size >= 3:
         # Walk the loop; it must visit every silhouette edge once.
@@ -276,16 +346,119 @@ def rotate_about(
 
 
 @nb.njit
-def new_work(vertex_count: int, facet_count: int) -> tuple:
-    """Return the reusable arrays of :func:`rotate_about` for a hull of this size."""
-    return (
-        np.zeros(facet_count, dtype=np.bool_),
+def new_work(
+    vertices: np.ndarray, normals: np.ndarray, edges: np.ndarray, edge_facets: np.ndarray
+) -> tuple:
+    """
+    Return a hull's edges for :func:`rotate_about`, binned when it is large, and its buffers.
+
+    A hull of :data:`BINNED_EDGES_MIN` edges or more has each edge (its two vertices, then the
+    normals of the facets on its left and right) in the cube-map cell of the sum of its
+    normals (:data:`SILHOUETTE_CELLS`), or in a last list when they are more than
+    :data:`WIDE_EDGE` apart. A cell keeps the centre of its normals' cone and the sine of its
+    half-angle plus :data:`CONE_SLACK`: when ``|centre . a|`` is above it, every normal of the
+    cell is on one side of the plane across ``a`` by more than the silhouette's tolerance, so
+    none of its edges is on the silhouette. The last list is always checked; empty cells have
+    a limit of -1 (skipped). A smaller hull has no cells: its facets are classed and every edge
+    looked at, as binning would cost more than it saves.
+
+    :return: (following, silhouette, x, y, order, polygon, side, normals, edges, edge_facets,
+        cell_start, edge_vertices, edge_normals, cell_centres, cell_limits); cell c holds the
+        edges ``cell_start[c]:cell_start[c + 1]`` of ``edge_vertices`` and ``edge_normals``.
+    """
+    vertex_count = vertices.shape[0]
+    buffers = (
         np.full(vertex_count, -1, dtype=np.int64),
         np.empty(vertex_count, dtype=np.int64),
         np.empty(vertex_count),
         np.empty(vertex_count),
         np.empty(vertex_count, dtype=np.int64),
         np.empty(vertex_count + 1, dtype=np.int64),
+    )
+    edge_count = edges.shape[0]
+    if edge_count < BINNED_EDGES_MIN:
+        return buffers + (
+            np.zeros(normals.shape[0], dtype=np.bool_),
+            normals,
+            edges,
+            edge_facets,
+            np.zeros(1, dtype=np.int64),
+            np.zeros((0, 2), dtype=np.int64),
+            np.zeros((0, 6)),
+            np.zeros((0, 3)),
+            np.zeros(0),
+        )
+    cell_count = 6 * SILHOUETTE_CELLS * SILHOUETTE_CELLS + 1
+    last = cell_count - 1
+    cell_of = np.full(edge_count, last, dtype=np.int64)
+    wide = math.cos(WIDE_EDGE)
+    for e in range(edge_count):
+        f = edge_facets[e, 0]
+        g = edge_facets[e, 1]
+        cosine = (
+            normals[f, 0] * normals[g, 0]
+            + normals[f, 1] * normals[g, 1]
+            + normals[f, 2] * normals[g, 2]
+        )
+        if cosine >= wide:
+            cell_of[e] = _cube_cell(
+                normals[f, 0] + normals[g, 0],
+                normals[f, 1] + normals[g, 1],
+                normals[f, 2] + normals[g, 2],
+                SILHOUETTE_CELLS,
+            )
+    # A counting sort of the edges by cell (stable).
+    cell_start = np.zeros(cell_count + 1, dtype=np.int64)
+    for e in range(edge_count):
+        cell_start[cell_of[e] + 1] += 1
+    for c in range(cell_count):
+        cell_start[c + 1] += cell_start[c]
+    filled = cell_start[:-1].copy()
+    edge_vertices = np.empty((edge_count, 2), dtype=np.int64)
+    edge_normals = np.empty((edge_count, 6))
+    for e in range(edge_count):
+        row = filled[cell_of[e]]
+        filled[cell_of[e]] += 1
+        edge_vertices[row, 0] = edges[e, 0]
+        edge_vertices[row, 1] = edges[e, 1]
+        for k in range(3):
+            edge_normals[row, k] = normals[edge_facets[e, 0], k]
+            edge_normals[row, 3 + k] = normals[edge_facets[e, 1], k]
+    cell_centres = np.zeros((cell_count, 3))
+    cell_limits = np.full(cell_count, -1.0)
+    cell_limits[last] = 2.0
+    for c in range(last):
+        if cell_start[c] == cell_start[c + 1]:
+            continue
+        cx = cy = cz = 0.0
+        for e in range(cell_start[c], cell_start[c + 1]):
+            cx += edge_normals[e, 0] + edge_normals[e, 3]
+            cy += edge_normals[e, 1] + edge_normals[e, 4]
+            cz += edge_normals[e, 2] + edge_normals[e, 5]
+        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+        cx /= norm
+        cy /= norm
+        cz /= norm
+        lowest = 1.0
+        for e in range(cell_start[c], cell_start[c + 1]):
+            for k in (0, 3):
+                cosine = cx * edge_normals[e, k] + cy * edge_normals[e, k + 1]
+                lowest = min(lowest, cosine + cz * edge_normals[e, k + 2])
+        half_angle = math.acos(max(-1.0, lowest)) + CONE_SLACK
+        cell_centres[c, 0] = cx
+        cell_centres[c, 1] = cy
+        cell_centres[c, 2] = cz
+        cell_limits[c] = math.sin(half_angle) if half_angle < 0.5 * math.pi else 2.0
+    return buffers + (
+        np.zeros(0, dtype=np.bool_),
+        normals,
+        edges,
+        edge_facets,
+        cell_start,
+        edge_vertices,
+        edge_normals,
+        cell_centres,
+        cell_limits,
     )
 
 
@@ -321,17 +494,7 @@ def _binned_area_vectors(normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
     cells = SHADOW_CELLS
     binned = np.zeros((6 * cells * cells, 3))
     for f in range(normals.shape[0]):
-        dominant = 0
-        for k in range(1, 3):
-            if abs(normals[f, k]) > abs(normals[f, dominant]):
-                dominant = k
-        major = normals[f, dominant]
-        face = 2 * dominant + (1 if major < 0.0 else 0)
-        first = normals[f, (dominant + 1) % 3] / abs(major)
-        second = normals[f, (dominant + 2) % 3] / abs(major)
-        i = min(max(int((first + 1.0) * (cells / 2.0)), 0), cells - 1)
-        j = min(max(int((second + 1.0) * (cells / 2.0)), 0), cells - 1)
-        row = (face * cells + i) * cells + j
+        row = _cube_cell(normals[f, 0], normals[f, 1], normals[f, 2], cells)
         for k in range(3):
             binned[row, k] += areas[f] * normals[f, k]
     size = 0
@@ -609,9 +772,6 @@ def grid_axes(frame: np.ndarray, grid_size: int) -> np.ndarray:
 @nb.njit
 def polish(
     vertices: np.ndarray,
-    normals: np.ndarray,
-    edges: np.ndarray,
-    edge_facets: np.ndarray,
     work: tuple,
     frames: np.ndarray,
     volumes: np.ndarray,
@@ -640,9 +800,6 @@ def polish(
             for column in (1, 2):
                 volume = rotate_about(
                     vertices,
-                    normals,
-                    edges,
-                    edge_facets,
                     work,
                     frames[s, 0, column],
                     frames[s, 1, column],
@@ -686,9 +843,6 @@ def polish(
 @nb.njit
 def walk(
     vertices: np.ndarray,
-    normals: np.ndarray,
-    edges: np.ndarray,
-    edge_facets: np.ndarray,
     work: tuple,
     frame: np.ndarray,
     volume: float,
@@ -722,9 +876,7 @@ def walk(
             y = ay + c * best_frame[1, 1] + s * best_frame[1, 2]
             z = az + c * best_frame[2, 1] + s * best_frame[2, 2]
             norm = math.sqrt(x * x + y * y + z * z)
-            found = rotate_about(
-                vertices, normals, edges, edge_facets, work, x / norm, y / norm, z / norm, trial
-            )
+            found = rotate_about(vertices, work, x / norm, y / norm, z / norm, trial)
             if found < volume * (1.0 - POLISH_TOLERANCE):
                 volume = found
                 copy_frame(trial, best_frame)
@@ -762,7 +914,7 @@ def search_kernel(
 
     :return: the volume (of the hull vertices) and the frame (3, 3), columns the box axes.
     """
-    work = new_work(vertices.shape[0], normals.shape[0])
+    work = new_work(vertices, normals, edges, edge_facets)
     axes, bounds = candidate_axes_kernel(
         vertices, normals, areas, edges, seed, candidates, pair_edges, sample_size, exhaustive
     )
@@ -784,9 +936,6 @@ def search_kernel(
             continue
         volume = rotate_about(
             vertices,
-            normals,
-            edges,
-            edge_facets,
             work,
             axes[j, 0],
             axes[j, 1],
@@ -823,9 +972,7 @@ def search_kernel(
     for i in range(filled):
         copy_frame(frames[listed[i]], start_frames[i])
         start_volumes[i] = listed_volumes[i]
-    volume, frame = polish(
-        vertices, normals, edges, edge_facets, work, start_frames, start_volumes, max_rounds
-    )
+    volume, frame = polish(vertices, work, start_frames, start_volumes, max_rounds)
     # Barequet and Har-Peled's grid of directions around the best frame: when the best box about
     # one of them is smaller, polish it and look again (the alternating rotations alone can stop
     # where no single-axis turn helps but a turn about a diagonal does).
@@ -841,9 +988,6 @@ def search_kernel(
                 continue
             found = rotate_about(
                 vertices,
-                normals,
-                edges,
-                edge_facets,
                 work,
                 grid[j, 0],
                 grid[j, 1],
@@ -856,14 +1000,9 @@ def search_kernel(
         if not best < volume * (1.0 - POLISH_TOLERANCE):
             break
         found_volume = np.array([best])
-        volume, frame = polish(
-            vertices, normals, edges, edge_facets, work, trial.copy(), found_volume, max_rounds
-        )
+        volume, frame = polish(vertices, work, trial.copy(), found_volume, max_rounds)
     return settle(
         vertices,
-        normals,
-        edges,
-        edge_facets,
         work,
         frame,
         volume,
@@ -877,9 +1016,6 @@ def search_kernel(
 @nb.njit
 def settle(
     vertices: np.ndarray,
-    normals: np.ndarray,
-    edges: np.ndarray,
-    edge_facets: np.ndarray,
     work: tuple,
     frame: np.ndarray,
     volume: float,
@@ -907,14 +1043,10 @@ def settle(
                     rolled[i, k] = frame[i, (k + 1) % 3]
             frame = rolled
         steps = walk_steps if pivot == 0 else max(1, walk_steps - LATER_WALK_SHORTER)
-        volume, frame = walk(
-            vertices, normals, edges, edge_facets, work, frame, volume, walk_step, steps
-        )
+        volume, frame = walk(vertices, work, frame, volume, walk_step, steps)
     frames = np.empty((1, 3, 3))
     copy_frame(frame, frames[0])
-    return polish(
-        vertices, normals, edges, edge_facets, work, frames, np.array([volume]), max_rounds
-    )
+    return polish(vertices, work, frames, np.array([volume]), max_rounds)
 
 
 def warm_up() -> None:

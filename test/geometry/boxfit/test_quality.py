@@ -102,16 +102,11 @@ def test_property_the_walk_never_grows_the_box_and_returns_its_frame(
     seed, count, steps, first_step, axes
 ):
     vertices, found = _hull_of(seed, count)
-    work = search.new_work(len(vertices), len(found.normals))
+    work = search.new_work(vertices, found.normals, found.edges, found.edge_facets)
     start = Rotation.random(random_state=seed).as_matrix()
     frame = np.empty((3, 3))
-    volume = search.rotate_about(
-        vertices, found.normals, found.edges, found.edge_facets, work, *start[:, 0], frame
-    )
-    walked_volume, walked = search.walk(
-        vertices, found.normals, found.edges, found.edge_facets, work, frame, volume,
-        first_step, steps,
-    )  # fmt: skip
+    volume = search.rotate_about(vertices, work, *start[:, 0], frame)
+    walked_volume, walked = search.walk(vertices, work, frame, volume, first_step, steps)
     assert walked_volume <= volume
     np.testing.assert_allclose(walked.T @ walked, np.eye(3), atol=1e-12)
     assert np.linalg.det(walked) == pytest.approx(1.0)
@@ -122,9 +117,8 @@ def test_property_the_walk_never_grows_the_box_and_returns_its_frame(
         np.prod(np.ptp(vertices @ walked, axis=0)), rel=VOLUME_REL
     )
     settled_volume, settled = search.settle(
-        vertices, found.normals, found.edges, found.edge_facets, work, walked, walked_volume,
-        3, steps, first_step, axes,
-    )  # fmt: skip
+        vertices, work, walked, walked_volume, 3, steps, first_step, axes
+    )
     assert settled_volume <= walked_volume
     assert np.linalg.det(settled) == pytest.approx(1.0)
     assert settled_volume == pytest.approx(
