@@ -198,6 +198,18 @@ def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int
     :return: the area and the unit direction (dx, dy) of the rectangle side flush with a polygon
         edge. One vertex gives area 0 and (1, 0); two give area 0 along their segment.
     """
+    return calipers_into(x, y, polygon, size, np.empty((4, max(size, 1))))
+
+
+@nb.njit
+def calipers_into(
+    x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int, scratch: np.ndarray
+) -> tuple:
+    """
+    Run :func:`calipers_kernel` with a caller's scratch array, (4, >= size) floats.
+
+    For callers that run the calipers hundreds of times a fit (no allocation per call).
+    """
     if size < 2:
         return 0.0, 1.0, 0.0
     if size == 2:
@@ -209,10 +221,10 @@ def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int
         return 0.0, dx / length, dy / length
     # The polygon's corners and edge vectors in contiguous arrays: the pointers below step
     # through them without going through `polygon` (the same differences, so the same result).
-    corner_x = np.empty(size)
-    corner_y = np.empty(size)
-    edge_x = np.empty(size)
-    edge_y = np.empty(size)
+    corner_x = scratch[0]
+    corner_y = scratch[1]
+    edge_x = scratch[2]
+    edge_y = scratch[3]
     for i in range(size):
         corner_x[i] = x[polygon[i]]
         corner_y[i] = y[polygon[i]]

@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 
 from mvbb_ros.geometry.boxfit.rectangle import (
-    calipers_kernel,
+    calipers_into,
     hull_2d_kernel,
     sift_down,
     sort_xy_kernel,
@@ -246,9 +246,9 @@ def rotate_about(
         side and their cross product.
     :return: the box volume (of the hull vertices).
     """
-    following, silhouette, px, py, order, polygon = work[:6]
-    side, normals, edges, edge_facets = work[6:10]
-    cell_start, edge_vertices, edge_normals, cell_centres, cell_limits = work[10:]
+    following, silhouette, px, py, order, polygon, scratch = work[:7]
+    side, normals, edges, edge_facets = work[7:11]
+    cell_start, edge_vertices, edge_normals, cell_centres, cell_limits = work[11:]
     count = vertices.shape[0]
     low = np.inf
     high = -np.inf
@@ -325,7 +325,7 @@ def rotate_about(
             py[s] = vx * vertices[s, 0] + vy * vertices[s, 1] + vz * vertices[s, 2]
             order[s] = s
         corners = hull_2d_kernel(px, py, order, size, polygon)
-    area, dx, dy = calipers_kernel(px, py, polygon, corners)
+    area, dx, dy = calipers_into(px, py, polygon, corners, scratch)
     sx = dx * ux + dy * vx
     sy = dx * uy + dy * vy
     sz = dx * uz + dy * vz
@@ -362,9 +362,10 @@ def new_work(
     a limit of -1 (skipped). A smaller hull has no cells: its facets are classed and every edge
     looked at, as binning would cost more than it saves.
 
-    :return: (following, silhouette, x, y, order, polygon, side, normals, edges, edge_facets,
-        cell_start, edge_vertices, edge_normals, cell_centres, cell_limits); cell c holds the
-        edges ``cell_start[c]:cell_start[c + 1]`` of ``edge_vertices`` and ``edge_normals``.
+    :return: (following, silhouette, x, y, order, polygon, calipers' scratch, side, normals,
+        edges, edge_facets, cell_start, edge_vertices, edge_normals, cell_centres,
+        cell_limits); cell c holds the edges ``cell_start[c]:cell_start[c + 1]`` of
+        ``edge_vertices`` and ``edge_normals``.
     """
     vertex_count = vertices.shape[0]
     buffers = (
@@ -374,6 +375,7 @@ def new_work(
         np.empty(vertex_count),
         np.empty(vertex_count, dtype=np.int64),
         np.empty(vertex_count + 1, dtype=np.int64),
+        np.empty((4, max(vertex_count, 1))),
     )
     edge_count = edges.shape[0]
     if edge_count < BINNED_EDGES_MIN:
