@@ -28,12 +28,8 @@ import math
 from pathlib import Path
 
 from mvbb_ros.geometry.boxfit.hull import convex_hull
-from mvbb_ros.geometry.boxfit.search import (
-    _edge_pair_axes,
-    copy_frame,
-    new_work,
-    rotate_about,
-)
+from mvbb_ros.geometry.boxfit.search import _edge_pair_axes, copy_frame
+from mvbb_ros.geometry.boxfit.turn import new_work, rotate_about
 import numba as nb
 import numpy as np
 from scipy.spatial.transform import Rotation

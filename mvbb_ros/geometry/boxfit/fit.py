@@ -60,14 +60,8 @@ from mvbb_ros.arrays import FloatArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit import hull as hull_module
 from mvbb_ros.geometry.boxfit.rectangle import calipers_kernel, hull_2d_kernel
-from mvbb_ros.geometry.boxfit.search import (
-    copy_frame,
-    frame_volume,
-    new_work,
-    polish,
-    search_kernel,
-    settle,
-)
+from mvbb_ros.geometry.boxfit.search import copy_frame, polish, search_kernel, settle
+from mvbb_ros.geometry.boxfit.turn import frame_volume, new_work
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike

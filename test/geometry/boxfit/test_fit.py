@@ -13,7 +13,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.boxfit import fit, hull, search
+from mvbb_ros.geometry.boxfit import fit, hull, search, turn
 from mvbb_ros.geometry.boxfit.fit import (
     fit_box,
     fit_part,
@@ -319,10 +319,10 @@ def _hull_arrays(points):
 
 
 def _turn(vertices, found, axis):
-    """Return the volume and frame of search.rotate_about for one axis."""
-    work = search.new_work(vertices, found.normals, found.edges, found.edge_facets)
+    """Return the volume and frame of turn.rotate_about for one axis."""
+    work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     frame = np.empty((3, 3))
-    volume = search.rotate_about(vertices, work, *axis, frame)
+    volume = turn.rotate_about(vertices, work, *axis, frame)
     return volume, frame
 
 
@@ -383,7 +383,7 @@ def test_the_silhouette_gives_the_outline_of_the_shadow(seed):
 
 def _unbinned_work(vertices, found):
     """Return rotate_about's work for a hull with its edges not binned (every edge looked at)."""
-    work = search.new_work(vertices, found.normals, found.edges, found.edge_facets)
+    work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     return work[:7] + (
         np.zeros(len(found.normals), dtype=np.bool_),
         found.normals,
@@ -412,8 +412,8 @@ def test_property_a_binned_hulls_turn_is_that_of_every_edge_looked_at(seed, flat
     shell /= np.linalg.norm(shell, axis=1)[:, None]
     points = shell * [1.0, 0.7, flatness] + rng.normal(scale=noise, size=shell.shape)
     vertices, found = _hull_arrays(points / np.abs(points).max())
-    assume(len(found.edges) >= search.BINNED_EDGES_MIN)
-    binned = search.new_work(vertices, found.normals, found.edges, found.edge_facets)
+    assume(len(found.edges) >= turn.BINNED_EDGES_MIN)
+    binned = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     assert len(binned[-1]) > 1  # cells, not one list
     unbinned = _unbinned_work(vertices, found)
     picked = rng.choice(len(found.normals), size=20, replace=False)
@@ -431,12 +431,12 @@ def test_property_a_binned_hulls_turn_is_that_of_every_edge_looked_at(seed, flat
     for axis in axes / np.linalg.norm(axes, axis=1)[:, None]:
         # No edge of a skipped cell is on the silhouette (the fallback would hide it below).
         skipped = (np.abs(centres @ axis) > limits)[cell_of_edge]
-        forward = edge_normals[:, :3] @ axis > search.SILHOUETTE_TOLERANCE
-        back = edge_normals[:, 3:] @ axis > search.SILHOUETTE_TOLERANCE
+        forward = edge_normals[:, :3] @ axis > turn.SILHOUETTE_TOLERANCE
+        back = edge_normals[:, 3:] @ axis > turn.SILHOUETTE_TOLERANCE
         assert not (skipped & (forward != back)).any()
         frames = np.empty((2, 3, 3))
-        volume = search.rotate_about(vertices, binned, *axis, frames[0])
-        expected = search.rotate_about(vertices, unbinned, *axis, frames[1])
+        volume = turn.rotate_about(vertices, binned, *axis, frames[0])
+        expected = turn.rotate_about(vertices, unbinned, *axis, frames[1])
         assert volume == expected
         assert frames[0].tobytes() == frames[1].tobytes()
 
@@ -592,7 +592,7 @@ def _distinct_smallest(turned, kept, distinct):
 
 def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct):
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
-    work = search.new_work(vertices, found.normals, found.edges, found.edge_facets)
+    work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     axes, _ = search.candidate_axes_kernel(
         vertices, found.normals, found.areas, found.edges, *knobs
     )

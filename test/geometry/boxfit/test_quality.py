@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
-from mvbb_ros.geometry.boxfit import fit, hull, search
+from mvbb_ros.geometry.boxfit import fit, hull, search, turn
 from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
 import numpy as np
 import pytest
@@ -102,10 +102,10 @@ def test_property_the_walk_never_grows_the_box_and_returns_its_frame(
     seed, count, steps, first_step, axes
 ):
     vertices, found = _hull_of(seed, count)
-    work = search.new_work(vertices, found.normals, found.edges, found.edge_facets)
+    work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     start = Rotation.random(random_state=seed).as_matrix()
     frame = np.empty((3, 3))
-    volume = search.rotate_about(vertices, work, *start[:, 0], frame)
+    volume = turn.rotate_about(vertices, work, *start[:, 0], frame)
     walked_volume, walked = search.walk(vertices, work, frame, volume, first_step, steps)
     assert walked_volume <= volume
     np.testing.assert_allclose(walked.T @ walked, np.eye(3), atol=1e-12)
