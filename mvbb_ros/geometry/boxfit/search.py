@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 
 from mvbb_ros.geometry.boxfit.rectangle import sift_down, sort_xy_kernel
-from mvbb_ros.geometry.boxfit.turn import cube_cell, frame_volume, new_work, rotate_about
+from mvbb_ros.geometry.boxfit.turn import cube_cell, new_work, rotate_about
 import numba as nb
 import numpy as np
 
