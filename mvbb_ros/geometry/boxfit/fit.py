@@ -79,13 +79,13 @@ CORESET_MIN_POINTS = 65536
 #: Facet normals ranked by the volume bound whose best box is computed (``candidates``), and
 #: half as many edge-pair normals. 48 rather than 24: the bound prunes most of the extra axes
 #: before they are turned, and 24 missed the best basin on 7 of 9,000 varied clouds (up to
-#: 1.034 x the reference; ``docs/performance.md``).
+#: 1.034 x the reference; ``CHANGELOG.md``).
 CANDIDATE_AXES = 48
 #: Distinct candidate boxes that start the polish (``starts``). 16 rather than 8: near-copies of
 #: one basin's box no longer count twice (:data:`~mvbb_ros.geometry.boxfit.search.SAME_START`),
 #: and the sixteen distinct smallest reach the basins 8 (and 12) missed on varied clouds (up to
 #: 1.0215 x the reference) at no measurable cost, since the polish halves the starts every round
-#: (``docs/performance.md``).
+#: (``CHANGELOG.md``).
 STARTS = 16
 #: Relative margin (of the box's extent) by which a point may stick out of the box of a
 #: coreset's hull before it joins the hull (:func:`_add_leaks`).

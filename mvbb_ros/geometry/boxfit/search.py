@@ -64,7 +64,7 @@ WALK_DIRECTIONS = 8
 #: Halvings fewer in the walks of a box's later axes (:func:`settle`): they look for another
 #: basin, the first axis's walk converges finely. 2 rather than 3: a later axis's finer tilt
 #: still found the basin of a 343-point part that the shorter walk left at 1.0159 x the
-#: exhaustive reference, for 1.6 % of a default fit's time (1 cost 4.8 %; ``docs/performance.md``).
+#: exhaustive reference, for 1.6 % of a default fit's time (1 cost 4.8 %; ``CHANGELOG.md``).
 LATER_WALK_SHORTER = 2
 #: The tilt directions of :func:`walk` (cosine and sine of multiples of 45 degrees).
 _WALK_COS = np.cos(np.arange(WALK_DIRECTIONS) * (2.0 * np.pi / WALK_DIRECTIONS))
