@@ -227,8 +227,11 @@ class DecomposerNode(Node):
             self._settings.node.input_reliability,
             self._settings.node.input_depth,
         )
-        # Frames run on their own thread: services and diagnostics answer during a frame.
-        self._worker = FrameWorker(self._run_frame, name='decomposer frames')
+        # Frames run on their own thread: services and diagnostics answer during a frame. As
+        # many clouds wait for it as the input keeps (input_depth).
+        self._worker = FrameWorker(
+            self._run_frame, name='decomposer frames', depth=self._settings.node.input_depth
+        )
         self._overload = OverloadWatch()
         # The wall clock: diagnostics go on while a bag is paused under use_sim_time.
         self._diagnostics_timer = self.create_timer(
@@ -325,6 +328,7 @@ class DecomposerNode(Node):
             before.input_depth,
         ):
             self._input.configure(after.input_reliability, after.input_depth)
+            self._worker.set_depth(after.input_depth)
         if before.publish_tree and not after.publish_tree:
             header = self._last_cloud.header if self._last_cloud is not None else Header()
             self._publishers_by_suffix['tree'].publish(cleared_tree(header))

@@ -1,4 +1,4 @@
-"""The node's frames off the executor: services answer during a frame, work never queues up."""
+"""The node's frames off the executor: services answer during a frame, at most input_depth wait."""
 
 from __future__ import annotations
 
@@ -62,6 +62,43 @@ def test_settings_changed_during_a_frame_give_one_reprocessing():
     finally:
         frame.release.set()
         worker.stop()
+
+
+def test_a_deeper_worker_keeps_the_newest_clouds_in_order():
+    frame = Blocking()
+    worker = FrameWorker(frame, depth=3)
+    try:
+        worker.submit('first')
+        assert frame.started.wait(10.0)
+        for name in ('a', 'b', 'c', 'd'):
+            worker.submit(name)
+        assert worker.skipped == 1  # 'a', pushed out by 'd'
+        frame.release.set()
+        assert worker.wait_idle(10.0)
+        assert frame.calls == ['first', 'b', 'c', 'd']
+    finally:
+        frame.release.set()
+        worker.stop()
+
+
+def test_a_shallower_depth_drops_the_oldest_waiting_clouds():
+    frame = Blocking()
+    worker = FrameWorker(frame, depth=5)
+    try:
+        worker.submit('first')
+        assert frame.started.wait(10.0)
+        for name in ('a', 'b', 'c'):
+            worker.submit(name)
+        worker.set_depth(1)
+        assert worker.depth == 1 and worker.skipped == 2
+        frame.release.set()
+        assert worker.wait_idle(10.0)
+        assert frame.calls == ['first', 'c']
+    finally:
+        frame.release.set()
+        worker.stop()
+    with pytest.raises(ValueError, match='depth must be >= 1'):
+        FrameWorker(frame, depth=0)
 
 
 def test_sustained_skipping_is_an_overload_and_a_burst_is_not():
@@ -132,4 +169,22 @@ def test_services_answer_and_changes_merge_while_a_frame_is_processed(monkeypatc
         assert received()['clouds_skipped_busy'] == 2
     finally:
         release.set()
+        graph.close()
+
+
+@pytest.mark.ros
+def test_the_frames_wait_as_deep_as_the_input_keeps():
+    """input_depth is the frames' queue too: a bag played faster than the node loses nothing."""
+    graph = Graph()
+    try:
+        assert graph.node.frames.depth == 1
+        setter = graph.probe.create_client(SetParameters, '/decomposer/set_parameters')
+        request = SetParameters.Request(
+            parameters=[Parameter('input_depth', value=50).to_parameter_msg()]
+        )
+        future = setter.call_async(request)
+        assert graph.spin_until(future.done, timeout_s=10.0)
+        assert future.result().results[0].successful
+        assert graph.node.frames.depth == 50
+    finally:
         graph.close()
