@@ -20,7 +20,7 @@ from typing import Any
 
 class FrameWorker:
     """
-    Process the clouds waiting (at most `depth`, oldest first), or the last one again, on one thread.
+    Process the waiting clouds (at most `depth`, oldest first) or the last one again, on a thread.
 
     :param process: called on the worker thread with a cloud (a new one) or None (process
         the last cloud again with the settings in force).
@@ -44,7 +44,7 @@ class FrameWorker:
         self._thread.start()
 
     def submit(self, cloud: Any) -> None:
-        """Queue `cloud`; when `depth` clouds wait, the oldest is dropped and counted as skipped."""
+        """Queue `cloud`; when `depth` clouds wait, the oldest is dropped (counted as skipped)."""
         with self._condition:
             if len(self._clouds) == self._clouds.maxlen:
                 self.skipped += 1
