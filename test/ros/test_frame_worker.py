@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 import threading
 
 from mvbb_ros.ros.diagnostics import OverloadWatch
@@ -30,75 +32,60 @@ class Blocking:
         assert self.release.wait(30.0)
 
 
-def test_clouds_arriving_during_a_frame_replace_each_other_and_are_counted():
+@contextmanager
+def busy_worker(depth: int = 1) -> Iterator[tuple[Blocking, FrameWorker]]:
+    """Yield a worker of `depth` whose frame function is busy with a cloud named 'first'."""
     frame = Blocking()
-    worker = FrameWorker(frame)
+    worker = FrameWorker(frame, depth=depth)
     try:
         worker.submit('first')
         assert frame.started.wait(10.0)
+        yield frame, worker
+    finally:
+        frame.release.set()
+        worker.stop()
+
+
+def finish(frame: Blocking, worker: FrameWorker) -> list[object]:
+    """Release the busy frame, wait for the worker to go idle, return what it processed."""
+    frame.release.set()
+    assert worker.wait_idle(10.0)
+    return frame.calls
+
+
+def test_clouds_arriving_during_a_frame_replace_each_other_and_are_counted():
+    with busy_worker() as (frame, worker):
         for name in ('second', 'third', 'fourth'):
             worker.submit(name)
         worker.again()  # a new cloud waits: it is processed with the new settings anyway
-        frame.release.set()
-        assert worker.wait_idle(10.0)
-        assert frame.calls == ['first', 'fourth']
+        assert finish(frame, worker) == ['first', 'fourth']
         assert worker.skipped == 2 and worker.merged == 1
-    finally:
-        frame.release.set()
-        worker.stop()
 
 
 def test_settings_changed_during_a_frame_give_one_reprocessing():
-    frame = Blocking()
-    worker = FrameWorker(frame)
-    try:
-        worker.submit('cloud')
-        assert frame.started.wait(10.0)
+    with busy_worker() as (frame, worker):
         for _ in range(50):
             worker.again()
-        frame.release.set()
-        assert worker.wait_idle(10.0)
-        assert frame.calls == ['cloud', None] and worker.merged == 49
-    finally:
-        frame.release.set()
-        worker.stop()
+        assert finish(frame, worker) == ['first', None] and worker.merged == 49
 
 
 def test_a_deeper_worker_keeps_the_newest_clouds_in_order():
-    frame = Blocking()
-    worker = FrameWorker(frame, depth=3)
-    try:
-        worker.submit('first')
-        assert frame.started.wait(10.0)
+    with busy_worker(depth=3) as (frame, worker):
         for name in ('a', 'b', 'c', 'd'):
             worker.submit(name)
         assert worker.skipped == 1  # 'a', pushed out by 'd'
-        frame.release.set()
-        assert worker.wait_idle(10.0)
-        assert frame.calls == ['first', 'b', 'c', 'd']
-    finally:
-        frame.release.set()
-        worker.stop()
+        assert finish(frame, worker) == ['first', 'b', 'c', 'd']
 
 
 def test_a_shallower_depth_drops_the_oldest_waiting_clouds():
-    frame = Blocking()
-    worker = FrameWorker(frame, depth=5)
-    try:
-        worker.submit('first')
-        assert frame.started.wait(10.0)
+    with busy_worker(depth=5) as (frame, worker):
         for name in ('a', 'b', 'c'):
             worker.submit(name)
         worker.set_depth(1)
         assert worker.depth == 1 and worker.skipped == 2
-        frame.release.set()
-        assert worker.wait_idle(10.0)
-        assert frame.calls == ['first', 'c']
-    finally:
-        frame.release.set()
-        worker.stop()
+        assert finish(frame, worker) == ['first', 'c']
     with pytest.raises(ValueError, match='depth must be >= 1'):
-        FrameWorker(frame, depth=0)
+        FrameWorker(Blocking(), depth=0)
 
 
 def test_sustained_skipping_is_an_overload_and_a_burst_is_not():
