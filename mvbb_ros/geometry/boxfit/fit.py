@@ -20,19 +20,21 @@ point: never worse than either, and always enclosing.
 What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
 (all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
 
-1. Bounding box, PCA of an evenly spread sample of at most 4096 points, every point in the PCA
-   frame centred on the bounding box and scaled to unit size: O(N), three passes.
+1. Bounding box, PCA of an evenly spread sample of at most 4096 points (its frame by
+   :func:`~mvbb_ros.geometry.boxfit.frames.symmetric_eigen`), every point in the PCA frame
+   centred on the bounding box and scaled to unit size: O(N), three passes.
 2. Clouds of ``coreset_min`` points or more (default 65,536): Barequet and Har-Peled's grid
    coreset (:func:`mvbb_ros.geometry.boxfit.hull.column_extremes_kernel`): O(N), at most 6 x 32^2
    points kept. After the search, one pass over every point finds those sticking out of the
-   frame's box (:func:`_add_leaks`); they join the hull and the frame is walked again (at most
-   :data:`LEAK_ROUNDS` times), the last pass giving the final box.
+   frame's box (:func:`~mvbb_ros.geometry.boxfit.enclose.add_leaks`); they join the hull and the
+   frame is walked again (at most :data:`LEAK_ROUNDS` times), the last pass giving the final box.
 3. Quickhull (:func:`mvbb_ros.geometry.boxfit.hull.quickhull_kernel`) on all points or the coreset:
    O(N log H).
 4. The orientation search on the hull (:func:`mvbb_ros.geometry.boxfit.search.search_kernel`):
    candidate ranking O(K (H + F)), then 60 to 120 axes, and at least 8 per step of the final walk,
    at O(F + E + S) each for silhouettes of S vertices.
-5. Enclose every point in each candidate frame: O(N).
+5. Enclose every point in each candidate frame
+   (:func:`~mvbb_ros.geometry.boxfit.enclose.final_box`): O(N).
 
 Degenerate clouds never reach the hull: the extents in the PCA frame give the affine rank (an
 extent below ``RANK_TOLERANCE`` of the largest is empty). One point or duplicates give a zero box,
@@ -53,25 +55,53 @@ module it calls into changes (:mod:`mvbb_ros.kernel_cache`).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 from mvbb_ros.arrays import FloatArray
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit import hull as hull_module
-from mvbb_ros.geometry.boxfit.rectangle import calipers_kernel, hull_2d_kernel
-from mvbb_ros.geometry.boxfit.search import copy_frame, polish, search_kernel, settle
+from mvbb_ros.geometry.boxfit.enclose import (
+    add_leaks,
+    final_box,
+    LEAK_ROUNDS,
+    LEAK_TOLERANCE,
+    ZERO_EXTENT,
+)
+from mvbb_ros.geometry.boxfit.frames import planar_frame, symmetric_eigen
+from mvbb_ros.geometry.boxfit.search import copy_frame, polish, search_kernel
 from mvbb_ros.geometry.boxfit.turn import frame_volume, new_work
 import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
 
+#: The public names; the leak check's and the final box's constants, which the notes and
+#: :func:`fit_box` name, are those of :mod:`mvbb_ros.geometry.boxfit.enclose`.
+__all__ = [
+    'CANDIDATE_AXES',
+    'CORESET_MIN_POINTS',
+    'FLAT_SEARCH',
+    'FULL_PART_SEARCH',
+    'LEAK_ROUNDS',
+    'LEAK_TOLERANCE',
+    'PART_SEARCH',
+    'PCA_SAMPLE',
+    'RANK_TOLERANCE',
+    'ROOT_SEARCH',
+    'SMALL_PART_SEARCH',
+    'STARTS',
+    'WALK_STEP',
+    'ZERO_EXTENT',
+    'fit_box',
+    'fit_kernel',
+    'fit_part',
+    'minimum_bounding_box',
+    'warm_up',
+]
+
 #: Relative extent (of the largest) below which a PCA direction counts as empty.
 RANK_TOLERANCE = 1e-10
 #: Relative PCA thickness below which the plane's rectangle is tried beside the hull search.
 FLAT_SEARCH = 1e-4
-#: Relative extent (of the largest) below which a box extent is reported as 0.
-ZERO_EXTENT = 1e-12
 #: Points of the evenly spread sample the PCA is computed on.
 PCA_SAMPLE = 4096
 #: Clouds of at least this many points are hulled on their grid coreset (``coreset_min``).
@@ -87,122 +117,11 @@ CANDIDATE_AXES = 48
 #: 1.0215 x the reference) at no measurable cost, since the polish halves the starts every round
 #: (``CHANGELOG.md``).
 STARTS = 16
-#: Relative margin (of the box's extent) by which a point may stick out of the box of a
-#: coreset's hull before it joins the hull (:func:`_add_leaks`).
-LEAK_TOLERANCE = 1e-3
-#: Most rounds of :func:`_add_leaks`.
-LEAK_ROUNDS = 3
 #: First tilt of the final walk of the box's axis (radians), halved ``walk_steps`` times.
 WALK_STEP = 0.04
 
 
-# Linear algebra -----------------------------------------------------------------------------
-
-
-@nb.njit
-def _symmetric_eigen(matrix: np.ndarray) -> np.ndarray:
-    """
-    Eigen-decompose a symmetric 3x3 matrix by cyclic Jacobi rotations.
-
-    :return: a right-handed rotation (3, 3) whose columns are unit eigenvectors, largest
-        eigenvalue first.
-    """
-    a = np.empty((3, 3))
-    v = np.zeros((3, 3))
-    for i in range(3):
-        v[i, i] = 1.0
-        for j in range(3):
-            a[i, j] = matrix[i, j]
-    for _ in range(64):
-        off = abs(a[0, 1]) + abs(a[0, 2]) + abs(a[1, 2])
-        diagonal = abs(a[0, 0]) + abs(a[1, 1]) + abs(a[2, 2])
-        if off == 0.0 or off <= 1e-18 * diagonal:
-            break
-        for pair in range(3):
-            p = 0 if pair < 2 else 1
-            q = 2 if pair > 0 else 1
-            if a[p, q] == 0.0:
-                continue
-            theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
-            t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-            if theta < 0.0:
-                t = -t
-            c = 1.0 / math.sqrt(t * t + 1.0)
-            s = t * c
-            for k in range(3):
-                akp = a[k, p]
-                akq = a[k, q]
-                a[k, p] = c * akp - s * akq
-                a[k, q] = s * akp + c * akq
-            for k in range(3):
-                apk = a[p, k]
-                aqk = a[q, k]
-                a[p, k] = c * apk - s * aqk
-                a[q, k] = s * apk + c * aqk
-            for k in range(3):
-                vkp = v[k, p]
-                vkq = v[k, q]
-                v[k, p] = c * vkp - s * vkq
-                v[k, q] = s * vkp + c * vkq
-    # Columns by decreasing eigenvalue (a three-element sort).
-    order = np.arange(3)
-    for i in range(1, 3):
-        j = i
-        while j > 0 and a[order[j], order[j]] > a[order[j - 1], order[j - 1]]:
-            order[j], order[j - 1] = order[j - 1], order[j]
-            j -= 1
-    vectors = np.empty((3, 3))
-    for j in range(3):
-        for k in range(3):
-            vectors[k, j] = v[k, order[j]]
-    # Right-handed: the third column is the cross product of the first two.
-    vectors[0, 2] = vectors[1, 0] * vectors[2, 1] - vectors[2, 0] * vectors[1, 1]
-    vectors[1, 2] = vectors[2, 0] * vectors[0, 1] - vectors[0, 0] * vectors[2, 1]
-    vectors[2, 2] = vectors[0, 0] * vectors[1, 1] - vectors[1, 0] * vectors[0, 1]
-    return vectors
-
-
-@nb.njit
-def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Return the 3x3 product a b (numba's @ needs BLAS through scipy)."""
-    out = np.zeros((3, 3))
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                out[i, j] += a[i, k] * b[k, j]
-    return out
-
-
 # The whole fit ---------------------------------------------------------------------------------
-
-
-@nb.njit
-def _planar_frame(local: np.ndarray, first: int, second: int) -> np.ndarray:
-    """
-    Return the frame of points flat across PCA axes `first` and `second`.
-
-    Its first two columns are the sides of the minimum-area rectangle of the points' coordinates
-    along those axes, the third their cross product (the plane's normal).
-    """
-    count = local.shape[0]
-    x = np.empty(count)
-    y = np.empty(count)
-    for i in range(count):
-        x[i] = local[i, first]
-        y[i] = local[i, second]
-    order = np.arange(count)
-    polygon = np.empty(count + 1, dtype=np.int64)
-    corners = hull_2d_kernel(x, y, order, count, polygon)
-    _, dx, dy = calipers_kernel(x, y, polygon, corners)
-    frame = np.zeros((3, 3))
-    frame[first, 0] = dx
-    frame[second, 0] = dy
-    frame[first, 1] = -dy
-    frame[second, 1] = dx
-    frame[0, 2] = frame[1, 0] * frame[2, 1] - frame[2, 0] * frame[1, 1]
-    frame[1, 2] = frame[2, 0] * frame[0, 1] - frame[0, 0] * frame[2, 1]
-    frame[2, 2] = frame[0, 0] * frame[1, 1] - frame[1, 0] * frame[0, 1]
-    return frame
 
 
 @nb.njit(cache=True, nogil=True)
@@ -289,7 +208,7 @@ def fit_kernel(
     covariance[1, 1] = c11
     covariance[1, 2] = covariance[2, 1] = c12
     covariance[2, 2] = c22
-    pca = _symmetric_eigen(covariance)
+    pca = symmetric_eigen(covariance)
     # Every point in the PCA frame, and its box there.
     local = np.empty((count, 3))
     p00, p01, p02 = pca[0, 0], pca[0, 1], pca[0, 2]
@@ -334,7 +253,7 @@ def fit_kernel(
     known_bounds = np.zeros((2, 2, 3))
     used = 0
     if rank == 2:
-        copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
+        copy_frame(planar_frame(local, widest, middle_axis), frames[used])
         used += 1
     elif rank == 3 and spans[narrowest] < FLAT_SEARCH * largest:
         # So thin that the hull's facets across the thickness are slivers: the plane's minimum
@@ -342,7 +261,7 @@ def fit_kernel(
         # hulls of every point (the PCA normal of a noisy slab is off by about thickness /
         # sqrt(N)); the smaller box of this and the hull search wins.
         planar = np.empty((1, 3, 3))
-        copy_frame(_planar_frame(local, widest, middle_axis), planar[0])
+        copy_frame(planar_frame(local, widest, middle_axis), planar[0])
         volume = np.array([frame_volume(local, planar[0])])
         # No hull: no edges, so every rotation is the 2D hull of every point's projection.
         no_edges = np.zeros((0, 2), dtype=np.int64)
@@ -387,7 +306,7 @@ def fit_kernel(
             used += 1
         elif status < 3:
             if used == 0:
-                copy_frame(_planar_frame(local, widest, middle_axis), frames[used])
+                copy_frame(planar_frame(local, widest, middle_axis), frames[used])
                 used += 1
         else:
             vertices = np.empty((hull_ids.shape[0], 3))
@@ -414,7 +333,7 @@ def fit_kernel(
                 distinct_starts,
             )
             if searched.shape[0] < count:
-                frame, bounds, exact = _add_leaks(
+                frame, bounds, exact = add_leaks(
                     local,
                     vertices,
                     frame,
@@ -431,7 +350,7 @@ def fit_kernel(
                         known_bounds[used, 1, k] = bounds[1, k]
             copy_frame(frame, frames[used])
             used += 1
-    return _final_box(
+    return final_box(
         local,
         origin,
         scale,
@@ -444,218 +363,6 @@ def fit_kernel(
         local_low,
         local_high,
     )
-
-
-@nb.njit
-def _leaks(local: np.ndarray, vertices: np.ndarray, frame: np.ndarray) -> tuple:
-    """
-    Return the points that stick out of the box of `vertices` in `frame` by more than a margin.
-
-    The margin is :data:`LEAK_TOLERANCE` of the box's extent along each axis. One pass over
-    the points, which also gives their box in the frame.
-
-    :return: the indices of the points sticking out, and the box of every point in the frame
-        (2, 3): lower corner, upper corner.
-    """
-    low = np.empty(3)
-    high = np.empty(3)
-    for k in range(3):
-        low[k] = np.inf
-        high[k] = -np.inf
-        for i in range(vertices.shape[0]):
-            h = frame[0, k] * vertices[i, 0] + frame[1, k] * vertices[i, 1]
-            h += frame[2, k] * vertices[i, 2]
-            low[k] = min(low[k], h)
-            high[k] = max(high[k], h)
-        margin = LEAK_TOLERANCE * (high[k] - low[k])
-        low[k] -= margin
-        high[k] += margin
-    f00, f01, f02 = frame[0, 0], frame[0, 1], frame[0, 2]
-    f10, f11, f12 = frame[1, 0], frame[1, 1], frame[1, 2]
-    f20, f21, f22 = frame[2, 0], frame[2, 1], frame[2, 2]
-    out = np.empty(local.shape[0], dtype=np.int64)
-    size = 0
-    l0 = l1 = l2 = np.inf
-    h0 = h1 = h2 = -np.inf
-    for i in range(local.shape[0]):
-        x = local[i, 0]
-        y = local[i, 1]
-        z = local[i, 2]
-        v0 = x * f00 + y * f10 + z * f20
-        v1 = x * f01 + y * f11 + z * f21
-        v2 = x * f02 + y * f12 + z * f22
-        l0, h0 = min(l0, v0), max(h0, v0)
-        l1, h1 = min(l1, v1), max(h1, v1)
-        l2, h2 = min(l2, v2), max(h2, v2)
-        if v0 < low[0] or v0 > high[0] or v1 < low[1] or v1 > high[1]:
-            out[size] = i
-            size += 1
-        elif v2 < low[2] or v2 > high[2]:
-            out[size] = i
-            size += 1
-    bounds = np.empty((2, 3))
-    bounds[0, 0], bounds[0, 1], bounds[0, 2] = l0, l1, l2
-    bounds[1, 0], bounds[1, 1], bounds[1, 2] = h0, h1, h2
-    return out[:size], bounds
-
-
-@nb.njit
-def _add_leaks(
-    local: np.ndarray,
-    vertices: np.ndarray,
-    frame: np.ndarray,
-    volume: float,
-    hull_tolerance: float,
-    max_rounds: int,
-    walk_steps: int,
-    walk_step: float,
-) -> tuple:
-    """
-    Re-check a frame searched on a coreset's hull against every point, and re-settle it.
-
-    The points outside the coreset hull's box in the frame (by more than
-    :data:`LEAK_TOLERANCE`) join the hull's vertices, which are hulled again, and the frame is
-    walked and polished on the new hull (:func:`mvbb_ros.geometry.boxfit.search.settle`); up to
-    :data:`LEAK_ROUNDS` times, until no point leaks. The coreset keeps each column's extremes
-    along three axes only: in a tilted frame, points between the columns' extremes can stick
-    out (a percent of volume on dense range scans with 14 x 14 columns).
-
-    :return: the frame (3, 3), the box of every point in it (2, 3) and whether that box is
-        known (the last check found no leak; otherwise the box is zeros).
-    """
-    for _ in range(LEAK_ROUNDS):
-        leaked, bounds = _leaks(local, vertices, frame)
-        if leaked.shape[0] == 0:
-            return frame, bounds, True
-        merged = np.empty((vertices.shape[0] + leaked.shape[0], 3))
-        for i in range(vertices.shape[0]):
-            for k in range(3):
-                merged[i, k] = vertices[i, k]
-        for j in range(leaked.shape[0]):
-            for k in range(3):
-                merged[vertices.shape[0] + j, k] = local[leaked[j], k]
-        status, hull_ids, _, normals, _, edges, edge_facets = hull_module.quickhull_kernel(
-            merged, hull_tolerance
-        )
-        if status != hull_module.FULL_RANK:
-            break
-        vertices = np.empty((hull_ids.shape[0], 3))
-        for i in range(hull_ids.shape[0]):
-            for k in range(3):
-                vertices[i, k] = merged[hull_ids[i], k]
-        volume = frame_volume(vertices, frame)
-        # The frame is already the search's best: a leak moves it a little, the first axis's
-        # walk follows (the later axes' walks, for other basins, were done on the coreset).
-        volume, frame = settle(
-            vertices,
-            new_work(vertices, normals, edges, edge_facets),
-            frame,
-            volume,
-            max_rounds,
-            walk_steps,
-            walk_step,
-            1,
-        )
-    return frame, np.zeros((2, 3)), False
-
-
-@nb.njit
-def _final_box(
-    local: np.ndarray,
-    origin: np.ndarray,
-    scale: float,
-    pca: np.ndarray,
-    frames: np.ndarray,
-    known: np.ndarray,
-    known_bounds: np.ndarray,
-    low: np.ndarray,
-    high: np.ndarray,
-    local_low: np.ndarray,
-    local_high: np.ndarray,
-) -> tuple:
-    """
-    Grow each frame's box around every point; return the smallest, or the PCA or axis-aligned box.
-
-    :param local: (N, 3) the points in the PCA frame, centred on `origin`, divided by `scale`.
-    :param frames: (K, 3, 3) searched frames in those coordinates.
-    :param known: (>= K,) whether the box of every point in frame j is already measured,
-        ``known_bounds[j]`` (lower corner, upper corner): that frame's pass is skipped.
-    :param low: (3,) the points' lower corner (world), ``high`` the upper one.
-    :param local_low: (3,) lower corner in the PCA frame, ``local_high`` the upper one.
-    :return: centre, rotation and extents, in world units.
-    """
-    count = frames.shape[0]
-    box_low = np.full((count, 3), np.inf)
-    box_high = np.full((count, 3), -np.inf)
-    for j in range(count):  # one frame at a time, its bounds in scalars (registers)
-        if known[j]:
-            for k in range(3):
-                box_low[j, k] = known_bounds[j, 0, k]
-                box_high[j, k] = known_bounds[j, 1, k]
-            continue
-        f00, f01, f02 = frames[j, 0, 0], frames[j, 0, 1], frames[j, 0, 2]
-        f10, f11, f12 = frames[j, 1, 0], frames[j, 1, 1], frames[j, 1, 2]
-        f20, f21, f22 = frames[j, 2, 0], frames[j, 2, 1], frames[j, 2, 2]
-        l0 = l1 = l2 = np.inf
-        h0 = h1 = h2 = -np.inf
-        for i in range(local.shape[0]):
-            x = local[i, 0]
-            y = local[i, 1]
-            z = local[i, 2]
-            v0 = x * f00 + y * f10 + z * f20
-            v1 = x * f01 + y * f11 + z * f21
-            v2 = x * f02 + y * f12 + z * f22
-            l0, h0 = min(l0, v0), max(h0, v0)
-            l1, h1 = min(l1, v1), max(h1, v1)
-            l2, h2 = min(l2, v2), max(h2, v2)
-        box_low[j, 0], box_low[j, 1], box_low[j, 2] = l0, l1, l2
-        box_high[j, 0], box_high[j, 1], box_high[j, 2] = h0, h1, h2
-    # Volumes compared at unit scale (world volumes of huge clouds overflow).
-    best = -1
-    volume = 1.0
-    aabb_volume = 1.0
-    for k in range(3):
-        volume *= local_high[k] - local_low[k]
-        aabb_volume *= (high[k] - low[k]) / scale
-    for j in range(count):
-        found = 1.0
-        for k in range(3):
-            found *= box_high[j, k] - box_low[j, k]
-        if found <= volume:
-            volume = found
-            best = j
-    extents = np.empty(3)
-    center = np.empty(3)
-    if aabb_volume < volume:
-        rotation = np.eye(3)
-        for k in range(3):
-            extents[k] = high[k] - low[k]
-            center[k] = origin[k]
-    else:
-        side_low = np.empty(3)
-        side_high = np.empty(3)
-        if best < 0:
-            rotation = pca.copy()
-            for k in range(3):
-                side_low[k] = local_low[k]
-                side_high[k] = local_high[k]
-        else:
-            rotation = _matmul(pca, frames[best])
-            for k in range(3):
-                side_low[k] = box_low[best, k]
-                side_high[k] = box_high[best, k]
-        for k in range(3):
-            extents[k] = (side_high[k] - side_low[k]) * scale
-        for j in range(3):
-            offset = 0.0
-            for k in range(3):
-                offset += rotation[j, k] * 0.5 * (side_low[k] + side_high[k])
-            center[j] = origin[j] + scale * offset
-    biggest = max(extents[0], extents[1], extents[2])
-    for k in range(3):
-        if extents[k] <= ZERO_EXTENT * biggest:
-            extents[k] = 0.0
-    return center, rotation, extents
 
 
 # Python API ------------------------------------------------------------------------------------
@@ -846,7 +553,7 @@ _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
 #: The knobs of a decomposition's light part fits (``part_search: light``): 6 starts, copies of
 #: one basin's box included, fewer candidate axes and edge pairs, a short walk of the first axis
 #: only, and parts of 1,000 points or more hulled on a 12 x 12 grid coreset (re-checked against
-#: every point, :func:`_add_leaks`). Lighter than the default search: a decomposition fits tens
+#: every point, :func:`add_leaks`). Lighter than the default search: a decomposition fits tens
 #: of parts a cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`. It misses the best basin
 #: on about one part in 200 (up to 1.05 x an exhaustive reference; ``docs/performance.md``).
 PART_SEARCH: dict[str, int] = {

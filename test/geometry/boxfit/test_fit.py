@@ -13,7 +13,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.boxfit import fit, hull, search, turn
+from mvbb_ros.geometry.boxfit import fit, frames, hull, search, turn
 from mvbb_ros.geometry.boxfit.fit import (
     fit_box,
     fit_part,
@@ -662,7 +662,7 @@ def test_the_pca_frame_is_a_right_handed_eigenbasis():
     for _ in range(20):
         matrix = rng.normal(size=(3, 3))
         matrix = matrix @ matrix.T
-        vectors = fit._symmetric_eigen(matrix)
+        vectors = frames.symmetric_eigen(matrix)
         np.testing.assert_allclose(vectors.T @ vectors, np.eye(3), atol=1e-12)
         assert np.linalg.det(vectors) == pytest.approx(1.0)
         values = np.diag(vectors.T @ matrix @ vectors)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
-from mvbb_ros.geometry.boxfit import fit, hull, search, turn
+from mvbb_ros.geometry.boxfit import enclose, hull, search, turn
 from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
 import numpy as np
 import pytest
@@ -133,10 +133,10 @@ def test_property_leaks_are_the_points_outside_the_grown_box(seed, count, kept):
     points = rng.normal(size=(count, 3)) * [1.0, 0.5, 0.2]
     subset = np.ascontiguousarray(points[: min(kept, count)])
     frame = Rotation.random(random_state=seed).as_matrix()
-    leaked, bounds = fit._leaks(points, subset, frame)
+    leaked, bounds = enclose._leaks(points, subset, frame)
     local = points @ frame
     low, high = (subset @ frame).min(axis=0), (subset @ frame).max(axis=0)
-    margin = fit.LEAK_TOLERANCE * (high - low)
+    margin = enclose.LEAK_TOLERANCE * (high - low)
     outside = ((local < low - margin) | (local > high + margin)).any(axis=1)
     np.testing.assert_array_equal(leaked, np.flatnonzero(outside))
     np.testing.assert_allclose(bounds, [local.min(axis=0), local.max(axis=0)], atol=1e-12)
