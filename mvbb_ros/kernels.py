@@ -52,7 +52,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.geometry.views.objects',
     'mvbb_ros.geometry.grasping.surface',
     'mvbb_ros.geometry.grasping.contacts',
-    'mvbb_ros.geometry.grasping.refine',
+    'mvbb_ros.geometry.grasping.ranking',
 )
 
 

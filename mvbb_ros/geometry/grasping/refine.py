@@ -5,11 +5,13 @@ The paper's hypotheses (:func:`~mvbb_ros.geometry.grasping.hypotheses.grasp_hypo
 box face centre; on a curved or partly seen object that centre rarely gives two antipodal contacts.
 :func:`refine_grasps` tries each seed, slid over its face and rolled a little, and more
 candidates closing along every box axis (approaching along the other axes, from above and from
-the sensor), on each object's surface (:mod:`mvbb_ros.geometry.grasping.surface`) with the pad
-gripper of :mod:`mvbb_ros.geometry.grasping.contacts`; it keeps the feasible approaches (none from
-below, none from the far side), scores what holds by its quality over small pose errors and how
-near its contacts' line passes the object's centre, with the task strategy's preference, and drops
-repeats. :func:`rescore_grasp` checks a previous frame's grasp
+the sensor; :mod:`mvbb_ros.geometry.grasping.candidates`), on each object's surface
+(:mod:`mvbb_ros.geometry.grasping.surface`) with the pad gripper of
+:mod:`mvbb_ros.geometry.grasping.contacts`; it keeps the feasible approaches (none from below,
+none from the far side), scores what holds by its quality over small pose errors and how near its
+contacts' line passes the object's centre, with the task strategy's preference
+(:mod:`mvbb_ros.geometry.grasping.scoring`), and drops repeats
+(:mod:`mvbb_ros.geometry.grasping.ranking`). :func:`rescore_grasp` checks a previous frame's grasp
 on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 ``docs/grasp_rules.md``.
 """
@@ -17,220 +19,35 @@ on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import math
-import weakref
 
-from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
+from mvbb_ros.arrays import cross, FloatArray, IndexArray, read_only
 from mvbb_ros.common.workers import Workers
 from mvbb_ros.geometry.box import Box
+from mvbb_ros.geometry.grasping.candidates import (
+    _box_candidates,
+    _faces_and_rolls,
+    _feasible,
+    _seed_candidates,
+)
 from mvbb_ros.geometry.grasping.contacts import (
-    CLEARANCE_PADS,
     COL_CENTER,
-    COL_CLEARANCE,
-    COL_CONTACTS,
-    COL_COVERAGE,
     COL_DEPTH,
     COL_FIRST,
     COL_QUALITY,
-    COL_SUPPORT,
     COL_TIP,
     COL_VALID,
     COL_WIDTH,
     evaluate_lines,
     EVALUATION_COLUMNS,
 )
-from mvbb_ros.geometry.grasping.hypotheses import FAR_SIDE_MARGIN_DEG, Grasp, gripper_quaternions
+from mvbb_ros.geometry.grasping.hypotheses import Grasp, gripper_quaternions
+from mvbb_ros.geometry.grasping.ranking import _pruned_ranking, _ranking, _same
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
+from mvbb_ros.geometry.grasping.scoring import _box_preferences, _robust_quality, _score
 from mvbb_ros.geometry.grasping.surface import SurfaceModel
-import numba as nb
 import numpy as np
-
-#: Slides of the grasp centre over the face, as fractions of the face's extent across the pads.
-SLIDES: tuple[float, ...] = (-0.3, -0.15, 0.0, 0.15, 0.3)
-#: Approaches per closing axis, evenly turned about it from the next box axis (4: the faces).
-APPROACHES_PER_AXIS = 12
-#: Rolls of the closing direction about the approach, degrees.
-ROLLS: tuple[float, ...] = (-20.0, 0.0, 20.0)
-#: Two grasps are the same (the list keeps the better) within this share of the pad size ...
-SAME_PADS = 0.5
-#: ... and this angle between their hand frames (a half turn about the approach is the same).
-SAME_ANGLE_DEG = 15.0
-
-
-@nb.njit(
-    'boolean[:](float64[:, :], float64[:, :], float64[:, :], float64, float64, int64)',
-    cache=True,
-    nogil=True,
-)
-def _distinct(
-    centers: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    distance: float,
-    cos_angle: float,
-    limit: int,
-) -> BoolArray:
-    """
-    Keep, in order, each grasp that is not the same as one kept before it (at most `limit`).
-
-    The same: centres within `distance`, approaches within the angle, closing lines within it
-    (either sense: a half turn about the approach is the same hand).
-    """
-    count = centers.shape[0]
-    keep = np.zeros(count, dtype=np.bool_)
-    kept = np.empty(count, dtype=np.int64)
-    size = 0
-    squared = distance * distance
-    for i in range(count):
-        if size >= limit:
-            break
-        same = False
-        for m in range(size):
-            j = kept[m]
-            dx = centers[i, 0] - centers[j, 0]
-            dy = centers[i, 1] - centers[j, 1]
-            dz = centers[i, 2] - centers[j, 2]
-            if dx * dx + dy * dy + dz * dz > squared:
-                continue
-            along = (
-                approaches[i, 0] * approaches[j, 0]
-                + approaches[i, 1] * approaches[j, 1]
-                + approaches[i, 2] * approaches[j, 2]
-            )
-            across = (
-                closings[i, 0] * closings[j, 0]
-                + closings[i, 1] * closings[j, 1]
-                + closings[i, 2] * closings[j, 2]
-            )
-            if along >= cos_angle and abs(across) >= cos_angle:
-                same = True
-                break
-        if not same:
-            keep[i] = True
-            kept[size] = i
-            size += 1
-    return keep
-
-
-# Candidates --------------------------------------------------------------------------------------
-
-
-@dataclass
-class _Candidates:
-    """Candidate grasp lines: origin, approach, closing, box, face and roll (seeds: -1 = none)."""
-
-    origins: list[FloatArray] = field(default_factory=list)
-    approaches: list[FloatArray] = field(default_factory=list)
-    closings: list[FloatArray] = field(default_factory=list)
-    boxes: list[IndexArray] = field(default_factory=list)
-
-    def add(
-        self, origins: FloatArray, approaches: FloatArray, closings: FloatArray, box: int
-    ) -> None:
-        """Add rows (broadcast to the origins' count)."""
-        count = len(origins)
-        self.origins.append(origins)
-        self.approaches.append(np.broadcast_to(approaches, (count, 3)))
-        self.closings.append(np.broadcast_to(closings, (count, 3)))
-        self.boxes.append(np.full(count, box, dtype=np.intp))
-
-    def arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, IndexArray]:
-        """Return (origins, approaches, closings, boxes) as contiguous arrays."""
-        if not self.origins:
-            empty = np.zeros((0, 3))
-            return empty, empty, empty, np.zeros(0, dtype=np.intp)
-        return (
-            np.ascontiguousarray(np.concatenate(self.origins)),
-            np.ascontiguousarray(np.concatenate(self.approaches)),
-            np.ascontiguousarray(np.concatenate(self.closings)),
-            np.concatenate(self.boxes),
-        )
-
-
-def _unit_rows(vectors: FloatArray) -> FloatArray:
-    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
-    return vectors / np.where(norms > 0.0, norms, 1.0)
-
-
-#: The turns of the approaches about each closing axis (cosine, sine), as columns.
-_TURNS = np.deg2rad(np.arange(0.0, 360.0, 360.0 / APPROACHES_PER_AXIS))
-_TURN_COS = np.array([math.cos(angle) for angle in _TURNS])[:, None]
-_TURN_SIN = np.array([math.sin(angle) for angle in _TURNS])[:, None]
-
-
-def _frames(
-    box: Box, up: FloatArray | None, view: FloatArray | None
-) -> tuple[FloatArray, FloatArray]:
-    """
-    Return the (approach, closing) pairs of one box, (P, 3) each: closing along each box axis.
-
-    Approaches: along the other two axes, both senses (the paper's faces), then from above
-    (against `up`) and along the viewing direction `view`, each made perpendicular to the
-    closing axis (skipped when nearly parallel to it).
-    """
-    axes = box.rotation.T
-    approaches = []
-    closings = []
-    for k in range(3):
-        closing = axes[k]
-        first, second = axes[(k + 1) % 3], axes[(k + 2) % 3]
-        # Each turn's products and sum, element by element, as one vector at a time would.
-        turned = _TURN_COS * first + _TURN_SIN * second
-        approaches.append(turned)
-        closings.append(np.broadcast_to(closing, turned.shape))
-        for direction in (None if up is None else -up, view):
-            if direction is None:
-                continue
-            flat = direction - (direction @ closing) * closing
-            norm = float(np.linalg.norm(flat))
-            if norm >= 0.3:
-                approaches.append((flat / norm)[None, :])
-                closings.append(closing[None, :])
-    return np.concatenate(approaches), np.concatenate(closings)
-
-
-def _box_candidates(
-    boxes: Sequence[Box], up: FloatArray | None, views: Sequence[FloatArray | None], pad: float
-) -> _Candidates:
-    """Return every box's candidate lines: frames x rolls x slides across the pads."""
-    out = _Candidates()
-    rolls = np.deg2rad(np.array(ROLLS))
-    slides = np.array(SLIDES)
-    for index, box in enumerate(boxes):
-        approaches, closings = _frames(box, up, views[index])  # (P, 3)
-        sides = cross(approaches, closings)
-        # (P, R, 3): each closing rolled about its approach, and the side axis of each roll.
-        turned = (
-            np.cos(rolls)[None, :, None] * closings[:, None, :]
-            + np.sin(rolls)[None, :, None] * sides[:, None, :]
-        )
-        across = cross(approaches[:, None, :], turned)
-        reach = np.abs(across @ box.rotation) @ box.extents  # (P, R) extent across the pads
-        offsets = slides * np.maximum(reach - pad, 0.0)[:, :, None]  # (P, R, S)
-        origins = box.center + offsets[..., None] * across[:, :, None, :]  # (P, R, S, 3)
-        count = origins.shape[1] * origins.shape[2]
-        out.add(
-            origins.reshape(-1, 3),
-            np.repeat(approaches, count, axis=0),
-            np.repeat(turned.reshape(-1, 3), len(slides), axis=0),
-            index,
-        )
-    return out
-
-
-def _seed_candidates(seeds: Sequence[Grasp], boxes: Sequence[Box], pad: float) -> _Candidates:
-    """Return the seeds' own lines (through their face centres), one sense per closing line."""
-    out = _Candidates()
-    for seed in seeds:
-        if seed.roll_deg >= 180:  # the half turn closes on the same line
-            continue
-        box = boxes[seed.box_index]
-        out.add(box.center[None, :], seed.approach, seed.closing, seed.box_index)
-    return out
-
-
-# The stage ---------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -248,46 +65,6 @@ class RefinedGrasps:
     candidates: int = 0
     holding: int = 0
     kept_previous: bool = False
-
-
-def _feasible(
-    approaches: FloatArray, objects: IndexArray, models: Sequence[SurfaceModel], view: GraspView
-) -> BoolArray:
-    """Tell which approaches are allowed: not from below (with up), not from the far side."""
-    keep = np.ones(len(approaches), dtype=bool)
-    if view.up is not None:
-        limit = math.sin(math.radians(view.max_approach_elevation_deg))
-        keep &= approaches @ view.up <= limit + 1e-12
-    if not view.far_side and view.viewpoint is not None:
-        centers = np.array([model.center for model in models])[objects]
-        sight = _unit_rows(centers - view.viewpoint)
-        margin = math.sin(math.radians(FAR_SIDE_MARGIN_DEG))
-        keep &= np.einsum('ij,ij->i', approaches, sight) >= margin
-    return keep
-
-
-def _faces_and_rolls(
-    boxes: Sequence[Box], box_index: IndexArray, approaches: FloatArray, closings: FloatArray
-) -> tuple[IndexArray, IndexArray]:
-    """Return each line's box face most opposed to its approach and its closing's roll (deg)."""
-    faces = np.zeros(len(box_index), dtype=np.intp)
-    rolls = np.zeros(len(box_index), dtype=np.intp)
-    for number in np.unique(box_index):
-        mine = np.flatnonzero(box_index == number)
-        box = boxes[int(number)]
-        normals = box.face_normals()
-        face = np.argmin(approaches[mine] @ normals.T, axis=1)
-        edges = box.rotation[:, (face // 2 + 1) % 3].T  # (M, 3)
-        turned = cross(-normals[face], edges)
-        angle = np.degrees(
-            np.arctan2(
-                np.einsum('ij,ij->i', closings[mine], turned),
-                np.einsum('ij,ij->i', closings[mine], edges),
-            )
-        )
-        faces[mine] = face
-        rolls[mine] = np.round(angle).astype(np.intp) % 360
-    return faces, rolls
 
 
 def _grasps(
@@ -364,37 +141,6 @@ def _holding_boxes(
         inside = np.min(box.half_extents - local, axis=1)
         fit[mine, index] = np.where(outside > 0.0, -outside, inside)
     return np.argmax(fit, axis=1)
-
-
-def _box_preferences(boxes: Sequence[Box], view: GraspView) -> FloatArray:
-    """
-    Return each box's preference in [0, 1] under the task strategy, as a ratio to the best box.
-
-    Largest: its volume over the largest; smallest: the smallest volume over its own;
-    outermost: its centre's distance from the boxes' volume-weighted centroid over the
-    largest such distance; nearest: the nearest box centre's distance from the viewpoint over
-    its own. Ratios (unlike the paper's min-max ranking) change little when the boxes change a
-    little from frame to frame.
-    """
-    if not boxes:
-        return np.zeros(0)
-    volumes = np.array([box.volume for box in boxes])
-    centers = np.array([box.center for box in boxes])
-    tiny = 1e-300
-    if view.strategy == 'largest':
-        ratio = volumes / max(float(volumes.max()), tiny)
-    elif view.strategy == 'smallest':
-        ratio = float(volumes.min()) / np.maximum(volumes, tiny)
-    elif view.strategy == 'outermost':
-        weights = volumes if volumes.sum() > 0.0 else np.ones(len(boxes))
-        centroid = (centers * weights[:, None]).sum(axis=0) / weights.sum()
-        distance = np.linalg.norm(centers - centroid, axis=1)
-        ratio = distance / max(float(distance.max()), tiny)
-    else:
-        origin = np.zeros(3) if view.viewpoint is None else view.viewpoint
-        distance = np.linalg.norm(centers - origin, axis=1)
-        ratio = float(distance.min()) / np.maximum(distance, tiny)
-    return np.clip(np.where(np.isfinite(ratio), ratio, 1.0), 0.0, 1.0)
 
 
 #: The previous grasp is re-scored at these slides across the pads (fractions of the pad size)
@@ -502,188 +248,6 @@ def rescore_grasp(
     )[0]
 
 
-#: A grasp's quality is the mean over its line and these neighbours (a robot's pose error):
-#: slid across the pads by this share of the pad size, and rolled by this angle (degrees).
-ROBUST_SLIDE = 0.25
-ROBUST_ROLL_DEG = 10.0
-#: Weight of the centring (closing line near the object's centre) in a grasp's quality.
-CENTRING_WEIGHT = 0.3
-
-
-def _neighbours(
-    origins: FloatArray, approaches: FloatArray, closings: FloatArray, pad: float
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Return each line's four neighbours (slid both ways, rolled both ways), (4 G, 3) each."""
-    side = cross(approaches, closings)
-    roll = math.radians(ROBUST_ROLL_DEG)
-    shift = ROBUST_SLIDE * pad * side
-    out_origins = np.concatenate([origins + shift, origins - shift, origins, origins])
-    rolled = [math.cos(roll) * closings + sign * math.sin(roll) * side for sign in (1.0, -1.0)]
-    out_closings = np.concatenate([closings, closings, *rolled])
-    return out_origins, np.concatenate([approaches] * 4), out_closings
-
-
-def _robust_quality(
-    models: Sequence[SurfaceModel],
-    objects: IndexArray,
-    origins: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    rows: FloatArray,
-    settings: RefinementSettings,
-    view: GraspView,
-    pool: Workers | None = None,
-) -> FloatArray:
-    """
-    Return each line's quality over pose errors, weighed with its centring.
-
-    `rows` are the lines' own evaluations (:func:`evaluate_lines`).
-
-    The contact quality is the mean over the line and its neighbours (0 where not held); the
-    centring (:func:`_centring`) weighs :data:`CENTRING_WEIGHT`.
-
-    The neighbours (:func:`_neighbours`) are what a robot's pose error of a few millimetres and
-    degrees makes of the grasp; a grasp at the edge of holding scores less than one in the
-    middle of a region that holds, and the score varies less with the sensor's noise.
-    """
-    total = np.zeros(len(origins))
-    for number, model in enumerate(models):
-        mine = np.flatnonzero(objects == number)
-        if not len(mine):
-            continue
-        lines = (origins[mine], approaches[mine], closings[mine])
-        neighbours = _neighbours(*lines, settings.pad_size)
-        if settings.finger_length > 0.0:
-            # The hand's score asks only whether each neighbour holds.
-            near = evaluate_lines(model, *neighbours, settings, view, valid_only=True, pool=pool)
-            total[mine] = _hand_quality(model, *lines, rows[mine], near, settings.pad_size, view)
-            continue
-        near = evaluate_lines(model, *neighbours, settings, view, pool=pool)
-        quality = np.concatenate([rows[mine, COL_QUALITY], near[:, COL_QUALITY]])
-        held = quality.reshape(5, len(mine)).mean(axis=0)
-        centring = _centring(model, *lines, rows[mine])
-        total[mine] = (1.0 - CENTRING_WEIGHT) * held + CENTRING_WEIGHT * centring
-    return total
-
-
-#: The hand model's score (``finger_length`` set): weights of its features, fitted on the
-#: physics trial's development objects only (``docs/grasp_rules.md``), and its centre.
-HAND_SCORE_WEIGHTS: dict[str, float] = {
-    'support': 0.69,
-    'clearance': 0.15,
-    'coverage': 0.59,
-    'neighbours': 0.97,
-    'width': -2.57,
-    'offset_side': -0.93,
-    'offset_closing': -1.76,
-    'closing_rise': -1.70,
-}
-HAND_SCORE_CENTRE = -0.28
-
-
-def _hand_quality(
-    model: SurfaceModel,
-    origins: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    rows: FloatArray,
-    near: FloatArray | None,
-    pad: float,
-    view: GraspView,
-) -> FloatArray:
-    """
-    Return each line's score in [0, 1] under the described hand: a logistic of its features.
-
-    Features: the pads' support, the fingers' clearance (full from half a pad), the pads'
-    coverage of the object along the approach, the share of the four neighbours (a robot's
-    pose error, :func:`_neighbours`) that hold, the width over the opening, the object's
-    centre's offset from the contacts' midpoint across the pads and along the closing line
-    (over the object's reach), and how much the closing direction rises (with `up`).
-
-    `near` None (the neighbours not evaluated) gives an upper bound of the score: the share of
-    neighbours that hold at its most favourable (:func:`_pruned_ranking`).
-    """
-    count = len(origins)
-    weights = HAND_SCORE_WEIGHTS
-    if near is None:
-        valid = np.full(count, 1.0 if weights['neighbours'] >= 0.0 else 0.0)
-    else:
-        valid = (near[:, COL_VALID] > 0.0).reshape(4, count).mean(axis=0)
-    clearance = np.minimum(1.0, rows[:, COL_CLEARANCE] / (CLEARANCE_PADS * pad))
-    centroid, reach = _centre_and_reach(model)
-    contacts = rows[:, slice(COL_CONTACTS, COL_CONTACTS + 6)].reshape(count, 2, 3)
-    middle = contacts.mean(axis=1)
-    offset = centroid - middle
-    side = cross(approaches, closings)
-    # Term by term, not a matrix product: a line's score must not depend on the batch it is in.
-    rise = np.zeros(count)
-    if view.up is not None:
-        rise = np.abs(sum(closings[:, axis] * view.up[axis] for axis in range(3)))
-    z = (
-        weights['support'] * rows[:, COL_SUPPORT]
-        + weights['clearance'] * clearance
-        + weights['coverage'] * rows[:, COL_COVERAGE]
-        + weights['neighbours'] * valid
-        + weights['width'] * rows[:, COL_WIDTH] / view.gripper_max_width
-        + weights['offset_side'] * np.abs(np.einsum('ij,ij->i', offset, side)) / reach
-        + weights['offset_closing'] * np.abs(np.einsum('ij,ij->i', offset, closings)) / reach
-        + weights['closing_rise'] * rise
-    )
-    return 1.0 / (1.0 + np.exp(-(z - HAND_SCORE_CENTRE)))
-
-
-#: Each model's centroid and reach, computed once (a cloud's scoring asks for them many times).
-_CENTRES: weakref.WeakKeyDictionary[SurfaceModel, tuple[FloatArray, float]] = (
-    weakref.WeakKeyDictionary()
-)
-
-
-def _centre_and_reach(model: SurfaceModel) -> tuple[FloatArray, float]:
-    """Return the centroid of the model's points and their largest distance from it (> 0)."""
-    known = _CENTRES.get(model)
-    if known is not None:
-        return known
-    centroid = read_only(model.points.mean(axis=0))
-    reach = max(float(np.linalg.norm(model.points - centroid, axis=1).max()), 1e-12)
-    _CENTRES[model] = (centroid, reach)
-    return centroid, reach
-
-
-def _centring(
-    model: SurfaceModel,
-    origins: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    rows: FloatArray,
-) -> FloatArray:
-    """
-    Return how near each closing line passes the object's centre, in [0, 1].
-
-    1 - the distance from the centroid of the surface model's points (observed and estimated)
-    to the line between the contacts, over the largest distance of a point from that centroid.
-    Gravity and a pushing finger twist the object about its centre of mass less the nearer
-    the contacts' line passes it (the torques in the grasp's wrench space).
-    """
-    if not len(model.points):
-        return np.zeros(len(origins))
-    centroid, reach = _centre_and_reach(model)
-    contacts = (
-        origins + rows[:, COL_TIP][:, None] * approaches + rows[:, COL_CENTER][:, None] * closings
-    )
-    offset = centroid - contacts
-    across = offset - np.einsum('ij,ij->i', offset, closings)[:, None] * closings
-    distance = np.linalg.norm(across, axis=1)
-    return np.clip(1.0 - distance / reach, 0.0, 1.0)
-
-
-def _score(
-    quality: FloatArray, preference: FloatArray, settings: RefinementSettings
-) -> FloatArray:
-    """Return the score in [0, 1]: the quality, with the strategy's preference weighed in."""
-    weight = settings.preference
-    return np.clip((1.0 - weight) * quality + weight * preference, 0.0, 1.0)
-
-
 def refine_grasps(
     seeds: Sequence[Grasp],
     boxes: Sequence[Box],
@@ -787,121 +351,3 @@ def refine_grasps(
             result.kept_previous = True
     result.grasps = result.grasps[:limit]
     return result
-
-
-def _ranking(
-    centers: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    scores: FloatArray,
-    settings: RefinementSettings,
-    limit: int,
-) -> tuple[IndexArray, FloatArray]:
-    """
-    Return the lines to publish (indices, best first) and their scores.
-
-    The best `limit` + 1 distinct grasps (:func:`_distinct`; one more than published, for the
-    previous frame's grasp to replace), ties kept in the lines' order.
-    """
-    ranked = np.argsort(-scores, kind='stable')
-    distinct = _distinct(
-        np.ascontiguousarray(centers[ranked]),
-        np.ascontiguousarray(approaches[ranked]),
-        np.ascontiguousarray(closings[ranked]),
-        SAME_PADS * settings.pad_size,
-        math.cos(math.radians(SAME_ANGLE_DEG)),
-        limit + 1,
-    )
-    return ranked[distinct], scores[ranked][distinct]
-
-
-#: The lines whose neighbours :func:`_pruned_ranking` evaluates first, per grasp published.
-PRUNE_BATCH = 4
-#: Each later batch adds this share of the lines scored so far (at least one ranking's worth):
-#: a ranking settled a little after the first batch scores little more than it needs.
-PRUNE_GROWTH = 0.25
-
-
-def _pruned_ranking(
-    models: Sequence[SurfaceModel],
-    objects: IndexArray,
-    origins: FloatArray,
-    approaches: FloatArray,
-    closings: FloatArray,
-    rows: FloatArray,
-    centers: FloatArray,
-    preference: FloatArray,
-    settings: RefinementSettings,
-    view: GraspView,
-    limit: int,
-    pool: Workers | None = None,
-) -> tuple[FloatArray, IndexArray, FloatArray]:
-    """
-    Return :func:`_ranking` of the hand model's scores, evaluating few lines' neighbours.
-
-    The same grasps and scores as scoring every line (:func:`_robust_quality`), cheaper: each
-    line's score with all its neighbours holding bounds its score from above, so the lines are
-    scored in the order of their bounds, in batches, until the ranking of the scored lines ends
-    above the bound of every line not scored (those can neither enter it nor, coming later,
-    remove a grasp from it). The returned quality is NaN for the lines not scored.
-
-    :return: each line's quality, the ranking's line indices and their scores.
-    """
-    count = len(origins)
-    bound = np.zeros(count)
-    for number, model in enumerate(models):
-        mine = np.flatnonzero(objects == number)
-        if len(mine):
-            bound[mine] = _hand_quality(
-                model,
-                origins[mine],
-                approaches[mine],
-                closings[mine],
-                rows[mine],
-                None,
-                settings.pad_size,
-                view,
-            )
-    # The centring's weight and the preference enter as for the exact score (both monotone).
-    bound_scores = _score(bound, preference, settings)
-    by_bound = np.argsort(-bound_scores, kind='stable')
-    quality = np.full(count, np.nan)
-    known = np.zeros(count, dtype=np.bool_)
-    size = min(count, PRUNE_BATCH * (limit + 1))
-    while True:
-        batch = by_bound[:size][~known[by_bound[:size]]]
-        lines = (objects[batch], origins[batch], approaches[batch], closings[batch], rows[batch])
-        quality[batch] = _robust_quality(models, *lines, settings, view, pool)
-        known[batch] = True
-        scored = np.flatnonzero(known)  # in the lines' order: ties break as without pruning
-        picked, scores = _ranking(
-            centers[scored],
-            approaches[scored],
-            closings[scored],
-            _score(quality[scored], preference[scored], settings),
-            settings,
-            limit,
-        )
-        if size >= count:
-            return quality, scored[picked], scores
-        # Strictly above the best bound left, with room for the bound's rounding.
-        if len(picked) == limit + 1 and scores[-1] > bound_scores[by_bound[size]] + 1e-12:
-            return quality, scored[picked], scores
-        size = min(count, size + max(limit + 1, int(PRUNE_GROWTH * size)))
-
-
-def _same(first: Grasp, second: Grasp, settings: RefinementSettings) -> bool:
-    """Tell whether two grasps are the same hand pose (the rule of :func:`_distinct`)."""
-    tips = [np.asarray(g.position) + g.depth * np.asarray(g.approach) for g in (first, second)]
-    if float(np.linalg.norm(tips[0] - tips[1])) > SAME_PADS * settings.pad_size:
-        return False
-    cos = math.cos(math.radians(SAME_ANGLE_DEG))
-    along = float(np.dot(first.approach, second.approach))
-    across = abs(float(np.dot(first.closing, second.closing)))
-    return along >= cos and across >= cos
-
-
-def warm_up() -> None:
-    """Run the module's kernel once (see :mod:`mvbb_ros.kernels`)."""
-    lines = np.eye(3)
-    _distinct(lines, lines, lines, 0.01, 0.9, 3)

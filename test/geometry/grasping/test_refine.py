@@ -315,16 +315,16 @@ def test_a_bounded_grasp_list_is_the_head_of_the_whole_list(seed, count, limit):
     to the bit), whatever the batches the pruning scores its lines in.
     """
     from mvbb_ros.evaluation.synthetic import table_top_frame
-    from mvbb_ros.geometry.grasping import refine
+    from mvbb_ros.geometry.grasping import ranking
 
     frame = table_top_frame(seed, count).points.reshape(-1, 3)
     points = frame[np.isfinite(frame).all(axis=1)]
     whole = process_points(points, PipelineSettings().updated({'max_grasps': 0}))
     assert len(whole.grasps) > limit, 'the scene must have more grasps than the list keeps'
     # One ranking's worth more each round, the defaults, and batches that double.
-    for batch, growth in ((1, 0.0), (refine.PRUNE_BATCH, refine.PRUNE_GROWTH), (1, 1.0)):
+    for batch, growth in ((1, 0.0), (ranking.PRUNE_BATCH, ranking.PRUNE_GROWTH), (1, 1.0)):
         with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(refine, 'PRUNE_BATCH', batch)
-            patch.setattr(refine, 'PRUNE_GROWTH', growth)
+            patch.setattr(ranking, 'PRUNE_BATCH', batch)
+            patch.setattr(ranking, 'PRUNE_GROWTH', growth)
             bounded = process_points(points, PipelineSettings().updated({'max_grasps': limit}))
         assert _grasp_rows(bounded) == _grasp_rows(whole)[:limit]
