@@ -64,6 +64,7 @@ from mvbb_ros import kernel_cache
 from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 from mvbb_ros.geometry.boxfit import fit as fit_module
 from mvbb_ros.geometry.decomposition import tree as decomposition
+from mvbb_ros.geometry.decomposition.result import Decomposition, ORDERS
 from mvbb_ros.geometry.decomposition.tree import decompose
 import numpy as np
 
@@ -115,9 +116,7 @@ def load(*relative: str) -> np.ndarray:
     return np.load(path)
 
 
-def timed(
-    function: Callable[[], decomposition.Decomposition], repeats: int
-) -> tuple[decomposition.Decomposition, float]:
+def timed(function: Callable[[], Decomposition], repeats: int) -> tuple[Decomposition, float]:
     """Run `function` `repeats` times; return the last result and the median seconds."""
     seconds = []
     result = None
@@ -389,7 +388,7 @@ def sweep_order() -> None:
     print('| order | Bunny (2/4/11) | Mug (2/3/5) | Homer (4/5/7) |')
     print('|---|---|---|---|')
     models = {model: load('models', f'{model}_vertices.npy') for model in PAPER_TABLE}
-    for order in decomposition.ORDERS:
+    for order in ORDERS:
         row = [order]
         for points in models.values():
             counts = [

@@ -23,7 +23,8 @@ from typing import Any, TYPE_CHECKING
 if TYPE_CHECKING:
     from mvbb_ros.geometry.box import Box
     from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
-    from mvbb_ros.geometry.decomposition.tree import decompose, Decomposition
+    from mvbb_ros.geometry.decomposition.result import Decomposition
+    from mvbb_ros.geometry.decomposition.tree import decompose
     from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
     from mvbb_ros.pipeline.process import process_points
     from mvbb_ros.pipeline.settings import PipelineSettings
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 #: Each public name and the module that defines it, imported on first use.
 _EXPORTS: dict[str, str] = {
     'Box': 'mvbb_ros.geometry.box',
-    'Decomposition': 'mvbb_ros.geometry.decomposition.tree',
+    'Decomposition': 'mvbb_ros.geometry.decomposition.result',
     'Grasp': 'mvbb_ros.geometry.grasping.hypotheses',
     'PipelineSettings': 'mvbb_ros.pipeline.settings',
     'decompose': 'mvbb_ros.geometry.decomposition.tree',

@@ -78,7 +78,7 @@ def test_the_stamp_covers_the_kernel_modules_a_module_imports():
     assert 'fit' not in covered('boxfit/hull')
     assert {'raster', 'cells'} <= covered('views/objects')
     assert {'raster', 'fit', 'hull'} <= covered('views/completion')
-    assert {'surface', 'cells', 'hypotheses', 'tree', 'split'} <= covered('grasping/contacts')
+    assert {'surface', 'cells', 'hypotheses', 'result', 'split'} <= covered('grasping/contacts')
     fit_file = (PACKAGE / 'geometry' / 'boxfit' / 'fit.py').resolve()
     assert kernel_cache.dependency_digest(fit_file) != kernel_cache.dependency_digest(
         (PACKAGE / 'geometry' / 'boxfit' / 'hull.py').resolve()

@@ -289,7 +289,7 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
     Return the JSON document of one cloud's result.
 
     ``objects``: per object its decomposition's own dict
-    (:meth:`~mvbb_ros.geometry.decomposition.tree.Decomposition.to_dict`: the tree, the leaves by
+    (:meth:`~mvbb_ros.geometry.decomposition.result.Decomposition.to_dict`: the tree, the leaves by
     node index, each box) with its index, observed point count, completion (and why it was
     skipped, or None) and mirror plane; ``leaves``: every leaf box in the order grasps number
     them (``box_index``), with its object, node and observed point count; then the grasps, the

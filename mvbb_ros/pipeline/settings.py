@@ -9,7 +9,7 @@ not load Open3D, which the filters use):
 * ``filtering``: :class:`FilterSettings` (this module); its defaults filter nothing;
 * ``scene``: :class:`~mvbb_ros.pipeline.scene.SceneSettings`; no support plane, no region of
   interest (the cloud is one segmented object, as in the paper);
-* ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.tree.DecompositionSettings`; the
+* ``decomposition``: :class:`~mvbb_ros.geometry.decomposition.result.DecompositionSettings`; the
   paper's defaults;
 * ``grasps``: :class:`~mvbb_ros.geometry.grasping.hypotheses.GraspSettings`; the library's
   defaults;
@@ -44,8 +44,8 @@ import typing
 from typing import Any, get_args, Literal
 
 from mvbb_ros.common.workers import default_workers, MAX_WORKERS
+from mvbb_ros.geometry.decomposition.result import DecompositionSettings, PART_SEARCHES
 from mvbb_ros.geometry.decomposition.split import SPLIT_MEASURES
-from mvbb_ros.geometry.decomposition.tree import DecompositionSettings, PART_SEARCHES
 from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import Completion, COMPLETIONS

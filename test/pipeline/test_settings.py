@@ -10,8 +10,8 @@ from mvbb_ros import decompose, grasp_hypotheses, PipelineSettings, process_poin
 from mvbb_ros.cli.main import build_parser, main
 from mvbb_ros.cli.options import settings_from_args
 from mvbb_ros.evaluation.synthetic import segmented_object_cloud
+from mvbb_ros.geometry.decomposition.result import DecompositionSettings
 from mvbb_ros.geometry.decomposition.split import SPLIT_MEASURES
-from mvbb_ros.geometry.decomposition.tree import DecompositionSettings
 from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, STRATEGIES
 from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import COMPLETIONS

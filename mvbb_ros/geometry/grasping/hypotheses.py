@@ -20,7 +20,7 @@ from typing import Any, get_args, Literal
 from mvbb_ros.arrays import BoolArray, cross, FloatArray, IndexArray, read_only
 from mvbb_ros.geometry import box as box_geometry
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition.tree import Decomposition
+from mvbb_ros.geometry.decomposition.result import Decomposition
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
@@ -670,8 +670,8 @@ def grasp_hypotheses(
     fields of :class:`GraspSettings`; :func:`grasp_filter_counts` takes the same and counts what
     each filter removes.
 
-    :param source: a :class:`~mvbb_ros.geometry.decomposition.tree.Decomposition` (its leaves, and
-        its kept points for the object centroid of ``'outermost'``) or a sequence of
+    :param source: a :class:`~mvbb_ros.geometry.decomposition.result.Decomposition` (its leaves,
+        and its kept points for the object centroid of ``'outermost'``) or a sequence of
         :class:`~mvbb_ros.geometry.box.Box`.
     :param gripper_max_width: maximum opening of the gripper; wider hypotheses are removed
         (default 0.08 m, the Franka Hand).

@@ -6,9 +6,10 @@ a half point spacings wide): the object's outline, with a band outside it where 
 too obliquely could still be (:data:`GRAZING_DEG`), and the nearest observed range per cell.
 :class:`ViewRaster` answers what the sensor could not have seen (:meth:`ViewRaster.hidden`);
 :func:`behind_others` tells points that lie behind another surface along their ray. The shape
-completion (:mod:`mvbb_ros.geometry.views.completion`) tests mirror planes against it, and the
-object separation (:mod:`mvbb_ros.geometry.views.objects`) asks whether two pieces touch in the
-view.
+completion (:mod:`mvbb_ros.geometry.views.completion`) tests mirror planes against it
+(:mod:`mvbb_ros.geometry.views.mirror`) and fills the space behind the seen surface along its
+rays (:mod:`mvbb_ros.geometry.views.fill`); the object separation
+(:mod:`mvbb_ros.geometry.views.objects`) asks whether two pieces touch in the view.
 """
 
 from __future__ import annotations

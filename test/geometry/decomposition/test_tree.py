@@ -11,8 +11,9 @@ from hypothesis.extra.numpy import arrays
 import mvbb_ros
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import fit_part
+from mvbb_ros.geometry.decomposition.result import ORDERS, STOP_REASONS
 from mvbb_ros.geometry.decomposition.split import cut_mask, score_cuts
-from mvbb_ros.geometry.decomposition.tree import ORDERS, RESCORE_MARGIN, STOP_REASONS
+from mvbb_ros.geometry.decomposition.tree import RESCORE_MARGIN
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

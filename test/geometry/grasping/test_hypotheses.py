@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from mvbb_ros import Grasp, grasp_hypotheses
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition.tree import (
+from mvbb_ros.geometry.decomposition.result import (
     Decomposition,
     DecompositionNode,
     DecompositionSettings,

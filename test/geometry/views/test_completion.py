@@ -8,7 +8,8 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import minimum_bounding_box
-from mvbb_ros.geometry.views.completion import complete_view, MAX_SAMPLES
+from mvbb_ros.geometry.views.completion import complete_view
+from mvbb_ros.geometry.views.fill import MAX_SAMPLES
 from mvbb_ros.geometry.views.raster import behind_others, view_raster
 from mvbb_ros.pipeline.filtering import filter_points
 import numpy as np
@@ -180,7 +181,7 @@ def test_the_mirror_search_finds_the_same_planes_whatever_order_it_tries_them(
 
     The plane search gives up a plane once it is worse than the best tried before it.
     """
-    from mvbb_ros.geometry.views.completion import _middle_out, plane_violations
+    from mvbb_ros.geometry.views.mirror import _middle_out, plane_violations
 
     points, box, _ = box_view(np.array([0.12, 0.08, 0.2]), yaw, elevation, 0.7, seed=seed)
     raster = view_raster(points, np.zeros(3), SPACING)
@@ -260,7 +261,7 @@ def test_a_leaning_board_seen_from_the_front_stays_a_board(lean_deg, with_up):
 
 def _one_per_cell_reference(points: np.ndarray, cell: float) -> np.ndarray:
     """Return the cells' points as the dense-grid kernel chose them before the `keep` mask."""
-    from mvbb_ros.geometry.views.completion import MAX_SOLID_SIDE
+    from mvbb_ros.geometry.views.fill import MAX_SOLID_SIDE
 
     if not len(points):
         return np.zeros(0, dtype=np.int64)
@@ -284,14 +285,14 @@ def test_one_point_per_cell_among_the_kept_points_is_that_of_the_kept_points_alo
     count, cell, seed
 ):
     """With a `keep` mask: the kept points' own cells, indices into all the points."""
-    from mvbb_ros.geometry.views.completion import _one_per_cell
+    from mvbb_ros.geometry.views.fill import one_per_cell
 
     rng = np.random.default_rng(seed)
     points = np.round(rng.uniform(-0.2, 0.3, (count, 3)), 2)  # ties in x and y, duplicates
     keep = rng.random(count) < 0.7
     kept = np.flatnonzero(keep)
     expected = kept[_one_per_cell_reference(points[kept], cell)]
-    np.testing.assert_array_equal(_one_per_cell(points, keep, cell), expected)
+    np.testing.assert_array_equal(one_per_cell(points, keep, cell), expected)
 
 
 def _random_cells(rng: np.random.Generator, rows: int, cols: int, size: int) -> np.ndarray:
@@ -311,7 +312,7 @@ def _random_cells(rng: np.random.Generator, rows: int, cols: int, size: int) -> 
 )
 def test_the_far_side_lengths_are_those_of_the_numpy_steps(rows, cols, count, far, seed):
     """The compiled ray lengths are those of np.maximum.at and scipy's 3 x 3 maximum filter."""
-    from mvbb_ros.geometry.views.completion import _far_side_lengths
+    from mvbb_ros.geometry.views.fill import _far_side_lengths
     from scipy import ndimage
 
     rng = np.random.default_rng(seed)
@@ -393,7 +394,7 @@ def test_the_oblique_ranges_are_those_of_the_formula_per_cell(rows, cols, radius
 @given(st.integers(1, 300), st.integers(1, 50), st.integers(0, 2**31 - 1))
 def test_the_column_bounds_are_numpys_minimum_and_maximum(rows, cols, seed):
     """One pass gives numpy's column minima and maxima (ties included)."""
-    from mvbb_ros.geometry.views.completion import _column_bounds
+    from mvbb_ros.geometry.views.mirror import _column_bounds
 
     values = np.round(np.random.default_rng(seed).normal(size=(rows, cols)), 1)
     low, high = _column_bounds(values)
