@@ -15,7 +15,7 @@ from typing import Any, TYPE_CHECKING
 from mvbb_ros.pipeline.settings import PipelineSettings
 
 if TYPE_CHECKING:  # the pipeline loads numba: imported when a command runs
-    from mvbb_ros.pipeline.process import PipelineResult
+    from mvbb_ros.pipeline.result import PipelineResult
 
 
 def _format_vector(values: Iterable[float]) -> str:
