@@ -228,7 +228,7 @@ def plane_fits(repeats: int = 20) -> None:
     """Print the plane fit's time and normal error against Open3D's segment_plane."""
     import subprocess
 
-    from mvbb_ros.pipeline.scene import fit_plane
+    from mvbb_ros.pipeline.plane import fit_plane
 
     command = [
         sys.executable,

@@ -41,6 +41,8 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.pipeline.filtering',
     'mvbb_ros.pipeline.outliers',
     'mvbb_ros.pipeline.density',
+    'mvbb_ros.pipeline.plane',
+    'mvbb_ros.pipeline.outline',
     'mvbb_ros.pipeline.scene',
     'mvbb_ros.geometry.boxfit.rectangle',
     'mvbb_ros.geometry.boxfit.hull',

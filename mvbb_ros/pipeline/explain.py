@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import asdict
 
 from mvbb_ros.geometry.grasping.hypotheses import grasp_filter_counts, GraspStats
-from mvbb_ros.pipeline.process import PipelineResult
+from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
 
 

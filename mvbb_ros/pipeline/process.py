@@ -5,22 +5,23 @@ The per-cloud pipeline: decode, filter, scene, objects, hidden side, decompose, 
 
 One function, :func:`process_points` (behind :func:`process_cloud` for messages), serves the
 node, `mvbb bag process` and `mvbb decompose`, with one :class:`PipelineSettings`, so a cloud
-gives the same boxes and grasps live, offline and on the command line. No ROS import: the cloud
-message is read duck-typed (rclpy and rosbags messages both work).
+gives the same boxes and grasps live, offline and on the command line. What it returns is a
+:class:`~mvbb_ros.pipeline.result.PipelineResult`. No ROS import: the cloud message is read
+duck-typed (rclpy and rosbags messages both work).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 import time
 from typing import Any
 
-from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray, IndexArray
+from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray
 from mvbb_ros.common.workers import Task, workers
 from mvbb_ros.geometry.box import Box
-from mvbb_ros.geometry.decomposition.tree import decompose, Decomposition
+from mvbb_ros.geometry.decomposition.tree import decompose
 from mvbb_ros.geometry.grasping.hypotheses import Grasp, grasp_hypotheses
-from mvbb_ros.geometry.grasping.refine import refine_grasps, RefinedGrasps
+from mvbb_ros.geometry.grasping.refine import refine_grasps
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
 from mvbb_ros.geometry.views.cells import neighbour_distances
@@ -40,6 +41,7 @@ from mvbb_ros.pipeline.filtering import (
     voxel_step,
     Voxels,
 )
+from mvbb_ros.pipeline.result import ObjectResult, PipelineResult
 from mvbb_ros.pipeline.scene import (
     find_scene,
     roi_mask,
@@ -50,135 +52,6 @@ from mvbb_ros.pipeline.scene import (
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-
-@dataclass(frozen=True, eq=False)
-class ObjectResult:
-    """
-    One object of a cloud: its observed points, its estimated shape and its decomposition.
-
-    :ivar index: the object's number in the cloud (0 is the largest).
-    :ivar point_indices: the object's points among the filtered points (sorted; with a
-        support plane, the filtered points of what stands on the table: the voxel grid and the
-        outlier removal then run on those only).
-    :ivar shape: the observed points and the estimate of the hidden side; the decomposition's
-        points are ``shape.points``, observed first.
-    :ivar decomposition: the fit-and-split tree of ``shape.points``.
-    :ivar support_floor: the height along the up direction of the table the object rests on
-        (from the support plane), or None when no plane was found under it.
-    :ivar spacing: the distance between the object's neighbouring observed points (metres), as
-        its completion and its grasps' surface used it.
-    :ivar voxel_size: the voxel edge of the object's observed points (metres): a small object's
-        own finer edge (``object_voxel_cells``, :mod:`mvbb_ros.pipeline.density`; its observed
-        points are then not among the filtered points that `point_indices` indexes), else the
-        frame's ``voxel_size``.
-    """
-
-    index: int
-    point_indices: IndexArray
-    shape: CompletedView
-    decomposition: Decomposition
-    support_floor: float | None = None
-    spacing: float = 0.0
-    voxel_size: float = 0.0
-
-    @property
-    def leaf_observed_counts(self) -> list[int]:
-        """Return how many observed (not estimated) points each leaf holds."""
-        observed = self.shape.observed
-        return [
-            int(np.count_nonzero(indices < observed))
-            for indices in self.decomposition.leaf_point_indices
-        ]
-
-
-@dataclass
-class PipelineResult:
-    """
-    What one cloud produced: its objects, each decomposed, and the grasps on all of them.
-
-    `warning` says why the result is empty when the input could not be used (the node logs it,
-    throttled, and publishes cleared outputs). Timings are wall-clock milliseconds per step.
-    Boxes are numbered across objects: :attr:`leaves` lists every object's leaves in object
-    order, and each grasp's ``box_index`` indexes it. `refinement` says what the refinement
-    tried (None when it is off). `support` is the plane the objects stand on (None when the
-    cloud is one segmented object, `support_note` says why); `up` the up direction the
-    completion and the grasps used and `up_source` where it came from (``'up_direction'``,
-    ``'support plane'`` or ``'none'``). `capped` says what a frame cap left out
-    (``max_objects``). `units_note` says when the cloud looks like millimetres
-    (:func:`millimetre_hint`); it never changes the result. `budget_note` says which settings
-    the frame time budget lightened for this frame (:mod:`mvbb_ros.pipeline.budget`).
-    """
-
-    counts: FilterCounts
-    objects: list[ObjectResult] = field(default_factory=list)
-    grasps: list[Grasp] = field(default_factory=list)
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    warning: str | None = None
-    refinement: RefinedGrasps | None = None
-    support: SupportPlane | None = None
-    support_note: str | None = None
-    up: tuple[float, float, float] | None = None
-    up_source: str = 'none'
-    capped: list[str] = field(default_factory=list)
-    units_note: str | None = None
-    budget_note: str | None = None
-
-    @property
-    def leaves(self) -> list[Box]:
-        """Return every object's leaf boxes, in object order."""
-        return [leaf for item in self.objects for leaf in item.decomposition.leaves]
-
-    @property
-    def leaf_object_indices(self) -> list[int]:
-        """Return the object index of each of :attr:`leaves`."""
-        return [item.index for item in self.objects for _ in item.decomposition.leaves]
-
-    @property
-    def leaf_observed_counts(self) -> list[int]:
-        """Return how many observed points each of :attr:`leaves` holds."""
-        return [count for item in self.objects for count in item.leaf_observed_counts]
-
-    @property
-    def inner_boxes(self) -> list[Box]:
-        """Return every object's split (inner) boxes of the hierarchy, in object order."""
-        return [
-            node.box for item in self.objects for node in item.decomposition.nodes if node.children
-        ]
-
-    @property
-    def inner_object_indices(self) -> list[int]:
-        """Return the object index of each of :attr:`inner_boxes`."""
-        return [
-            item.index
-            for item in self.objects
-            for node in item.decomposition.nodes
-            if node.children
-        ]
-
-    @property
-    def notes(self) -> list[str]:
-        """
-        Return what to read the boxes with: units, time budget, frame caps, completions skipped.
-
-        A completion asked for but skipped (the points are not one view from the viewpoint: a
-        whole model, merged views, or a cloud transformed without setting ``viewpoint``) leaves
-        boxes fitted to the points as they are, carved into plates on a single view.
-        """
-        units = [note for note in (self.units_note, self.budget_note) if note is not None]
-        skipped = [
-            f'object {item.index}: shape completion skipped, {item.shape.skipped}; its boxes '
-            'fit the points as they are'
-            for item in self.objects
-            if item.shape.skipped is not None
-        ]
-        return units + self.capped + skipped
-
-    @property
-    def total_ms(self) -> float:
-        """Return the total processing time in milliseconds."""
-        return float(sum(self.timings_ms.values()))
-
 
 #: The cluster tolerance is at least this many point spacings (sparse clouds stay whole).
 CLUSTER_SPACINGS = 3.0

@@ -5,11 +5,12 @@ A table-top frame holds the table, what stands on it, and walls and floor around
 object holds one object. :func:`find_scene` tells them apart and reduces a scene to what stands
 on its table:
 
-1. **Plane**: a RANSAC plane fit (random triples of a fixed-seed sample of the points, each
-   scored on that sample; the best refitted by least squares on all its inliers, twice), then
-   the largest connected patch of its inliers on a grid in the plane (the table, not every
-   point at table height in the room), refitted on that patch. The normal is turned towards the
-   viewpoint (the sensor looks at the table's top). With ``up`` known, only planes within
+1. **Plane**: a RANSAC plane fit (:mod:`mvbb_ros.pipeline.plane`: random triples of a
+   fixed-seed sample of the points, each scored on that sample; the best refitted by least
+   squares on its inliers until it settles), then the largest connected patch of its inliers on
+   a grid in the plane (:mod:`mvbb_ros.pipeline.outline`: the table, not every point at table
+   height in the room), refitted on that patch. The normal is turned towards the viewpoint (the
+   sensor looks at the table's top). With ``up`` known, only planes within
    :data:`MAX_TILT_DEG` of it are tried.
 2. **Outline**: the convex hull of the patch's points projected into the plane.
 3. **Standing points**: more than ``support_distance`` above the plane (on the sensor's side),
@@ -38,9 +39,8 @@ compiled pass, and only those points go through the voxel grid and the outlier r
 ``support_coefficients`` ((a, b, c) pointing up, out of the table's top) and skips the fit and
 the decision. The region of interest (``roi_max_distance``, metres from the viewpoint) is
 applied before the filters (:func:`roi_mask`), so a room-sized cloud is cut down to the work
-surface before anything costly. Pure numpy and scipy: the fit is cheap on a sample, and keeps
-Open3D out of the node's start (``docs/performance.md`` compares it with Open3D's
-``segment_plane``).
+surface before anything costly. Pure numpy and scipy: the plane fit is cheap on a sample, and
+keeps Open3D out of the node's start.
 """
 
 from __future__ import annotations
@@ -50,12 +50,11 @@ import math
 from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray, perpendicular_axes
-from mvbb_ros.geometry.views.cells import key_order
+from mvbb_ros.pipeline.outline import inside_outline, largest_patch, outline_2d
+from mvbb_ros.pipeline.plane import fit_plane, MAX_TILT_DEG, plane_through
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
-from scipy.spatial import ConvexHull, QhullError
 
 #: What finds the support plane (the first is the library default): ``none`` (the cloud is one
 #: segmented object: the paper), ``auto`` (fit it, keep it only when the cloud is a scene) or
@@ -90,25 +89,6 @@ class SceneSettings:
     roi_max_distance: float = 0.0
 
 
-#: Random triples tried, and the most points they are scored on.
-RANSAC_HYPOTHESES = 1024
-RANSAC_SAMPLE = 2048
-#: The sample is scored in blocks of this many points: a triple that can no longer beat the
-#: best one stops being scored.
-RANSAC_BLOCK = 256
-#: The least-squares refits use at most this many inliers (evenly strided).
-REFIT_POINTS = 16384
-#: Most least-squares refits of the best triple's plane, each on the inliers of the one before,
-#: until a refit turns the normal less than :data:`REFIT_TURN_DEG`: a triple that slices a table
-#: at a slant across something standing on it (a plane 10-14 degrees off the table, 15 % of the
-#: points within 1 cm of it) turns to the table itself in three rounds, and a table's own plane
-#: stops after two.
-REFIT_ROUNDS = 4
-REFIT_TURN_DEG = 0.05
-#: With an up direction, only planes tilted at most this far from it are tried, and a refitted
-#: plane tilted further is no support (degrees): a table is level, and a face of a segmented
-#: object that passes the other tests is usually not.
-MAX_TILT_DEG = 15.0
 #: The grid of the inlier patch: this many point spacings, at least :data:`PATCH_CELL_MIN_M`.
 PATCH_CELLS = 4.0
 PATCH_CELL_MIN_M = 0.01
@@ -229,281 +209,6 @@ def _within(points: Any, eye: Any, squared: Any) -> Any:
     return inside
 
 
-def _plane_through(points: FloatArray) -> tuple[FloatArray, float]:
-    """Return the least-squares plane (unit normal, offset) of `points` (N >= 3)."""
-    points = points[:: max(1, len(points) // REFIT_POINTS)]
-    center = points.mean(axis=0)
-    centred = points - center
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    normal = vectors[:, 0]
-    return normal, -float(normal @ center)
-
-
-def fit_plane(
-    points: FloatArray,
-    distance: float,
-    up: FloatArray | None = None,
-    seed: int = 0,
-) -> tuple[FloatArray, float] | None:
-    """
-    Return the plane (unit normal, offset) that most of `points` lie within `distance` of.
-
-    RANSAC on a fixed-seed sample (deterministic), refined by least squares on the inliers
-    among all points, then on the refined plane's inliers until a refit hardly turns it (at most
-    :data:`REFIT_ROUNDS` fits). With `up` (unit), only planes within :data:`MAX_TILT_DEG` of it
-    count. None when no plane is found (fewer than 3 points, all collinear, or none near `up`).
-    """
-    count = len(points)
-    if count < 3:
-        return None
-    rng = np.random.default_rng(seed)
-    sample = points[rng.integers(0, count, min(count, RANSAC_SAMPLE))]
-    corners = rng.integers(0, len(sample), (RANSAC_HYPOTHESES, 3))
-    normals, lengths = _triple_normals(np.ascontiguousarray(sample, dtype=np.float64), corners)
-    usable = lengths > 1e-12
-    if up is not None:
-        cosine = math.cos(math.radians(MAX_TILT_DEG))
-        usable &= np.abs(normals @ up) >= cosine * lengths
-    if not usable.any():
-        return None
-    normals = normals[usable] / lengths[usable, None]
-    offsets = -np.einsum('ij,ij->i', normals, sample[corners[usable, 0]])
-    columns = np.ascontiguousarray(sample.T, dtype=np.float64)
-    best = _best_plane(columns, normals, offsets, distance, RANSAC_BLOCK)
-    normal, offset = normals[best], float(offsets[best])
-    settled = math.cos(math.radians(REFIT_TURN_DEG))
-    for _ in range(REFIT_ROUNDS):
-        near = np.abs(points @ normal + offset) <= distance
-        if np.count_nonzero(near) < 3:
-            break
-        previous = normal
-        normal, offset = _plane_through(points[near])
-        if abs(float(normal @ previous)) >= settled:
-            break
-    return normal, offset
-
-
-@njit(
-    'Tuple((float64[:, ::1], float64[::1]))(float64[:, ::1], int64[:, ::1])',
-    cache=True,
-    nogil=True,
-)
-def _triple_normals(points: FloatArray, corners: IndexArray) -> tuple[FloatArray, FloatArray]:
-    """
-    Return the normals (not unit) of the triangles of `points` at `corners` (H, 3), and lengths.
-
-    The same floats as numpy's: (b - a) x (c - a) as :func:`mvbb_ros.arrays.cross`, and the
-    root of the squares added x, y, z (``np.linalg.norm(axis=1)``).
-    """
-    normals = np.empty((corners.shape[0], 3))
-    lengths = np.empty(corners.shape[0])
-    for h in range(corners.shape[0]):
-        a, b, c = corners[h, 0], corners[h, 1], corners[h, 2]
-        u0, u1, u2 = (
-            points[b, 0] - points[a, 0],
-            points[b, 1] - points[a, 1],
-            points[b, 2] - points[a, 2],
-        )
-        v0, v1, v2 = (
-            points[c, 0] - points[a, 0],
-            points[c, 1] - points[a, 1],
-            points[c, 2] - points[a, 2],
-        )
-        n0, n1, n2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
-        normals[h, 0], normals[h, 1], normals[h, 2] = n0, n1, n2
-        lengths[h] = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-    return normals, lengths
-
-
-@njit
-def _near(
-    xs: Any, ys: Any, zs: Any, plane: Any, offset: float, distance: float, start: int, stop: int
-) -> int:
-    """Return how many of the points start:stop lie within `distance` of the plane."""
-    a, b, c = plane[0], plane[1], plane[2]
-    # Slices: indices from 0, which the compiler knows are not negative (the loop vectorises).
-    x, y, z = xs[start:stop], ys[start:stop], zs[start:stop]
-    near = 0
-    for i in range(x.shape[0]):
-        if abs(a * x[i] + b * y[i] + c * z[i] + offset) <= distance:
-            near += 1
-    return near
-
-
-@njit(
-    'int64(float64[:, ::1], float64[:, ::1], float64[::1], float64, int64)',
-    cache=True,
-    nogil=True,
-)
-def _best_plane(
-    columns: FloatArray, normals: FloatArray, offsets: FloatArray, distance: float, block: int
-) -> int:
-    """
-    Return the first of the planes (normal, offset) with the most points within `distance`.
-
-    The answer of counting every plane's points (``argmax``), cheaper: a likely winner is found
-    first (Nister's preemptive scoring: every plane on a block of points, the better half on
-    the next block too, and so on) and counted whole; then every other plane is counted block
-    by block, and dropped as soon as the points left cannot make it win.
-
-    :param columns: (3, N) the points' x, y and z rows (contiguous: the count vectorises).
-    """
-    xs, ys, zs = columns[0], columns[1], columns[2]
-    count = xs.shape[0]
-    planes = normals.shape[0]
-    alive = np.arange(planes)
-    # Each plane's count on the first `scored` points.
-    scores = np.zeros(planes, dtype=np.int64)
-    scored = np.zeros(planes, dtype=np.int64)
-    start = 0
-    while alive.shape[0] > 1 and start < count:
-        stop = min(start + block, count)
-        for k in range(alive.shape[0]):
-            h = alive[k]
-            scores[h] += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
-            scored[h] = stop
-        start = stop
-        order = key_order(-scores[alive])  # not numba's sort: see mvbb_ros.geometry.views.cells
-        alive = alive[order[: max(1, alive.shape[0] // 2)]]
-    best = alive[0]
-    top = scores[best] + _near(
-        xs, ys, zs, normals[best], offsets[best], distance, scored[best], count
-    )
-    for h in range(planes):
-        if h == best:
-            continue
-        # To win: more points than the best, or as many and an earlier index.
-        need = top if h < best else top + 1
-        near = scores[h]
-        start = scored[h]
-        while start < count and near + count - start >= need:
-            stop = min(start + block, count)
-            near += _near(xs, ys, zs, normals[h], offsets[h], distance, start, stop)
-            start = stop
-        if start == count and near >= need:
-            best, top = h, near
-    return int(best)
-
-
-def _largest_patch(flat: FloatArray, cell: float) -> IndexArray:
-    """Return the indices of the points of the largest 8-connected patch of `flat` (N, 2)."""
-    cells, occupied = _grid_cells(np.ascontiguousarray(flat, dtype=np.float64), float(cell))
-    labels, _ = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
-    return _largest_label(np.ascontiguousarray(labels, dtype=np.int32), cells)
-
-
-@njit('Tuple((int64[:, ::1], boolean[:, ::1]))(float64[:, ::1], float64)', cache=True, nogil=True)
-def _grid_cells(flat: FloatArray, cell: float) -> tuple[IndexArray, BoolArray]:
-    """Return each point's cell on a grid `cell` wide from the lowest corner, and the occupied."""
-    count = flat.shape[0]
-    low_x, low_y = np.inf, np.inf
-    for i in range(count):
-        low_x, low_y = min(low_x, flat[i, 0]), min(low_y, flat[i, 1])
-    cells = np.empty((count, 2), dtype=np.int64)
-    high_x, high_y = 0, 0
-    for i in range(count):
-        cells[i, 0] = np.int64((flat[i, 0] - low_x) / cell)  # truncated, as numpy's astype
-        cells[i, 1] = np.int64((flat[i, 1] - low_y) / cell)
-        high_x, high_y = max(high_x, cells[i, 0]), max(high_y, cells[i, 1])
-    occupied = np.zeros((high_x + 1, high_y + 1), dtype=np.bool_)
-    for i in range(count):
-        occupied[cells[i, 0], cells[i, 1]] = True
-    return cells, occupied
-
-
-@njit('int64[::1](int32[:, ::1], int64[:, ::1])', cache=True, nogil=True)
-def _largest_label(labels: Any, cells: IndexArray) -> IndexArray:
-    """Return the indices of the points in the cells of the label with the most points."""
-    count = cells.shape[0]
-    sizes = np.zeros(labels.max() + 1, dtype=np.int64)
-    for i in range(count):
-        sizes[labels[cells[i, 0], cells[i, 1]]] += 1
-    sizes[0] = 0
-    largest = np.argmax(sizes)  # the first of the largest, as numpy's
-    kept = np.empty(sizes[largest], dtype=np.int64)
-    found = 0
-    for i in range(count):
-        if labels[cells[i, 0], cells[i, 1]] == largest:
-            kept[found] = i
-            found += 1
-    return kept
-
-
-@njit('boolean[::1](float64[:, ::1])', cache=True, nogil=True)
-def _off_octagon(flat: FloatArray) -> BoolArray:
-    """
-    Tell which of `flat` (N, 2) are not well inside the octagon of its extreme points.
-
-    The extreme points in 8 directions (every 45 degrees, counter-clockwise) are hull
-    vertices; what lies inside their polygon is no hull vertex. A point counts as inside only
-    when it is clearly so (by far more than rounding), so the hull of the points kept is the
-    hull of all.
-    """
-    count = flat.shape[0]
-    extreme = np.zeros(8, dtype=np.int64)
-    best = np.full(8, -np.inf)
-    scale = 0.0
-    for i in range(count):
-        x, y = flat[i, 0], flat[i, 1]
-        scale = max(scale, abs(x), abs(y))
-        along = (x, x + y, y, y - x, -x, -x - y, -y, x - y)
-        for k in range(8):
-            if along[k] > best[k]:
-                best[k], extreme[k] = along[k], i
-    keep = np.ones(count, dtype=np.bool_)
-    edges = 0
-    for k in range(8):
-        if extreme[k] != extreme[(k + 1) % 8]:
-            edges += 1
-    if edges < 3:
-        return keep
-    for i in range(count):
-        x, y = flat[i, 0], flat[i, 1]
-        inside = True
-        for k in range(8):
-            a, b = extreme[k], extreme[(k + 1) % 8]
-            ex, ey = flat[b, 0] - flat[a, 0], flat[b, 1] - flat[a, 1]
-            if ex == 0.0 and ey == 0.0:
-                continue
-            side = ex * (y - flat[a, 1]) - ey * (x - flat[a, 0])
-            if side <= 1e-9 * scale * max(abs(ex), abs(ey)):
-                inside = False
-                break
-        keep[i] = not inside
-    return keep
-
-
-def _outline_2d(flat: FloatArray) -> FloatArray:
-    """
-    Return the convex hull of `flat` (N, 2), counter-clockwise; empty when degenerate.
-
-    Qhull gets only the points off the octagon of the extreme points (:func:`_off_octagon`):
-    the same hull, the same vertices in the same order, from a fraction of a table's points.
-    """
-    if len(flat) < 3:
-        return np.empty((0, 2))
-    flat = flat[_off_octagon(np.ascontiguousarray(flat, dtype=np.float64))]
-    try:
-        hull = ConvexHull(flat)
-    except QhullError:
-        return np.empty((0, 2))
-    return flat[hull.vertices]  # counter-clockwise for 2D input
-
-
-def inside_outline(flat: FloatArray, outline: FloatArray, margin: float) -> BoolArray:
-    """Tell which of `flat` (N, 2) lie at least `margin` inside the convex `outline` (K, 2)."""
-    if len(outline) < 3:
-        return np.ones(len(flat), dtype=bool)
-    edges = np.roll(outline, -1, axis=0) - outline
-    outward = np.column_stack([edges[:, 1], -edges[:, 0]])
-    outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
-    limits = np.einsum('ij,ij->i', outward, outline) - margin
-    inside = np.ones(len(flat), dtype=bool)
-    for k in range(len(outline)):
-        inside &= flat @ outward[k] <= limits[k]
-    return inside
-
-
 def _reach(outline: FloatArray, footprint: FloatArray) -> int:
     """Return in how many of the directions the outline passes `footprint` by EXTEND_M."""
     angles = np.arange(EXTEND_DIRECTIONS) * (2.0 * math.pi / EXTEND_DIRECTIONS)
@@ -546,7 +251,7 @@ def _patch(
     near = np.flatnonzero(np.abs(points @ normal + offset) <= distance)
     if len(near) < 3:
         return near
-    return near[_largest_patch(points[near] @ _frame(normal).T, cell)]
+    return near[largest_patch(points[near] @ _frame(normal).T, cell)]
 
 
 def _next_plane(
@@ -568,7 +273,7 @@ def _next_plane(
     patch = indices[_patch(subset, *plane, distance, cell)]
     if len(patch) < 3:
         return None
-    normal, offset = _oriented(*_plane_through(points[patch]), eye)
+    normal, offset = _oriented(*plane_through(points[patch]), eye)
     return _Candidate(normal, offset, patch)
 
 
@@ -630,7 +335,7 @@ def find_scene(
         scale = float(np.linalg.norm(coefficients[:3]))
         normal, offset = coefficients[:3] / scale, float(coefficients[3]) / scale
         patch = _patch(points, normal, offset, distance, cell)
-        outline = _outline_2d(points[patch] @ _frame(normal).T)
+        outline = outline_2d(points[patch] @ _frame(normal).T)
         kept = np.flatnonzero(_standing(points, normal, offset, outline, settings))
         return Scene(_support(normal, offset, outline, len(patch), True), kept)
     rest = np.ones(len(points), dtype=bool)
@@ -655,7 +360,7 @@ def find_scene(
             reasons.append(f'plane {number}: 0 points stand on it')
             continue
         frame = _frame(normal)
-        outline = _outline_2d(points[candidate.patch] @ frame.T)
+        outline = outline_2d(points[candidate.patch] @ frame.T)
         kept = np.flatnonzero(_standing(points, normal, offset, outline, settings, heights))
         if len(kept) < min_points:
             reasons.append(f'plane {number}: {len(kept)} points stand on it')
@@ -780,9 +485,6 @@ def warm_up() -> None:
     """Run every kernel of this module once (see :mod:`mvbb_ros.kernels`)."""
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
     flat = np.column_stack([grid, np.zeros(len(grid))])
-    fit_plane(flat, 0.01)
-    _largest_patch(grid, 0.3)
-    _outline_2d(grid)
     outline = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
     support = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0, outline, len(flat))
     for dtype in (np.float32, np.float64):

@@ -13,7 +13,7 @@ from pathlib import Path
 import time
 
 from geometry_msgs.msg import PoseArray
-from mvbb_ros.pipeline.process import PipelineResult
+from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.messages import output_messages
 from mvbb_ros.ros.offline import process_bag, ProcessedCloud, ProcessSummary

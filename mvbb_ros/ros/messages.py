@@ -35,7 +35,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Point32, PolygonStamped, Pose, PoseArray
 from mvbb_ros.geometry.box import Box, box_quaternions, EDGES
 from mvbb_ros.geometry.grasping.hypotheses import Grasp
-from mvbb_ros.pipeline.process import PipelineResult
+from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.scene import SupportPlane
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.encode import create_cloud_xyz

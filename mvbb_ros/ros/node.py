@@ -41,7 +41,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from mvbb_ros.kernels import warm_up_logged
 from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.explain import empty_grasps_note
-from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
+from mvbb_ros.pipeline.process import GraspMemory, process_cloud
+from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.settings import (
     is_ros_parameter,
     PipelineSettings,

@@ -29,7 +29,8 @@ from typing import Any
 from mvbb_ros.common.atomic import atomic_path
 from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.explain import empty_grasps_note
-from mvbb_ros.pipeline.process import GraspMemory, PipelineResult, process_cloud
+from mvbb_ros.pipeline.process import GraspMemory, process_cloud
+from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.bag import (
     BagError,
@@ -65,7 +66,7 @@ class ProcessedCloud:
     :ivar milliseconds: pipeline time (decode, filter, decompose, grasps).
     :ivar note: why the outputs are empty (the node's warning), or which grasp filter removed
         every grasp when there are boxes but no grasps, or which object's hidden side was not
-        estimated (:attr:`~mvbb_ros.pipeline.process.PipelineResult.notes`), or ''.
+        estimated (:attr:`~mvbb_ros.pipeline.result.PipelineResult.notes`), or ''.
     :ivar objects: objects found in the cloud.
     :ivar top_score: the top grasp's score, NaN when there is none.
     """

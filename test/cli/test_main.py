@@ -116,8 +116,7 @@ def test_a_scenes_picture_stands_on_its_table_and_an_objects_on_its_box(
     scene, monkeypatch, tmp_path
 ):
     """With a table found the views look down onto it; a segmented object keeps its box frame."""
-    from mvbb_ros.cli import main as cli_main
-    from mvbb_ros.cli import render
+    from mvbb_ros.cli import commands, render
     from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
     from mvbb_ros.pipeline.settings import PipelineSettings
 
@@ -129,7 +128,7 @@ def test_a_scenes_picture_stands_on_its_table_and_an_objects_on_its_box(
         points = points[np.isfinite(points).all(axis=1)]
     else:
         points = segmented_object_cloud('mug', seed=0)
-    cli_main.decompose_and_report(
+    commands.decompose_and_report(
         points, PipelineSettings(), json_path=None, png_path=tmp_path / 'p.png', title='t'
     )
     (frame,) = [options['frame'] for options in frames]

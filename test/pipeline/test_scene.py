@@ -17,15 +17,10 @@ from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 from mvbb_ros.arrays import perpendicular_axes
 from mvbb_ros.evaluation.synthetic import segmented_object_cloud, table_top_frame
+from mvbb_ros.pipeline.outline import inside_outline
+from mvbb_ros.pipeline.plane import MAX_TILT_DEG
 from mvbb_ros.pipeline.process import process_points, RESTING_GAP
-from mvbb_ros.pipeline.scene import (
-    find_scene,
-    inside_outline,
-    MAX_TILT_DEG,
-    roi_mask,
-    SceneSettings,
-    standing_mask,
-)
+from mvbb_ros.pipeline.scene import find_scene, roi_mask, SceneSettings, standing_mask
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 import pytest

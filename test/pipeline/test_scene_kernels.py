@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 from mvbb_ros.arrays import cross
-from mvbb_ros.pipeline import scene as scene_module
+from mvbb_ros.pipeline import outline, plane
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
@@ -39,7 +39,7 @@ def test_property_best_plane_is_the_argmax_of_every_count(count, planes, share, 
     a, b, c = (normals[:, k][:, None] for k in range(3))
     counts = np.count_nonzero(np.abs(a * x + b * y + c * z + offsets[:, None]) <= 0.02, axis=1)
     columns = np.ascontiguousarray(points.T)
-    assert scene_module._best_plane(columns, normals, offsets, 0.02, block) == np.argmax(counts)
+    assert plane._best_plane(columns, normals, offsets, 0.02, block) == np.argmax(counts)
 
 
 @hypothesis_settings(max_examples=150, deadline=None)
@@ -51,7 +51,7 @@ def test_property_best_plane_is_the_argmax_of_every_count(count, planes, share, 
     seed=st.integers(0, 10_000),
 )
 def test_property_the_octagon_cull_keeps_the_outline(count, shape, turn, shift, seed):
-    """`_outline_2d` (Qhull on the points off the octagon) is Qhull's outline of all points."""
+    """`outline_2d` (Qhull on the points off the octagon) is Qhull's outline of all points."""
     rng = np.random.default_rng(seed)
     if shape == 'box':
         flat = rng.uniform(-1.0, 1.0, (count, 2)) * [1.0, 0.3]
@@ -70,7 +70,7 @@ def test_property_the_octagon_cull_keeps_the_outline(count, shape, turn, shift, 
         expected = flat[ConvexHull(flat).vertices]
     except QhullError:
         expected = np.empty((0, 2))
-    np.testing.assert_array_equal(scene_module._outline_2d(flat), expected)
+    np.testing.assert_array_equal(outline.outline_2d(flat), expected)
 
 
 def _largest_patch_numpy(flat: np.ndarray, cell: float) -> np.ndarray:
@@ -95,13 +95,13 @@ def _largest_patch_numpy(flat: np.ndarray, cell: float) -> np.ndarray:
     seed=st.integers(0, 10_000),
 )
 def test_property_the_largest_patch_is_numpys(count, patches, cell, seed):
-    """`_largest_patch` (compiled cells and counts) keeps the points numpy's version keeps."""
+    """`largest_patch` (compiled cells and counts) keeps the points numpy's version keeps."""
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-1.0, 1.0, (patches, 2))
     flat = centres[rng.integers(0, patches, count)] + rng.normal(0.0, 0.08, (count, 2))
     flat = np.round(flat, 2)  # points on cell edges
     np.testing.assert_array_equal(
-        scene_module._largest_patch(flat, cell), _largest_patch_numpy(flat, cell)
+        outline.largest_patch(flat, cell), _largest_patch_numpy(flat, cell)
     )
 
 
@@ -119,6 +119,6 @@ def test_property_triple_normals_are_numpys(count, planes, scale, seed):
     corners = rng.integers(0, count, (planes, 3))
     triples = points[corners]
     expected = cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
-    normals, lengths = scene_module._triple_normals(points, corners)
+    normals, lengths = plane._triple_normals(points, corners)
     np.testing.assert_array_equal(normals, expected)
     np.testing.assert_array_equal(lengths, np.linalg.norm(expected, axis=1))

@@ -6,7 +6,8 @@ from dataclasses import fields, replace
 
 from mvbb_ros.common.workers import workers
 from mvbb_ros.evaluation.synthetic import table_top_frame
-from mvbb_ros.pipeline.process import PipelineResult, process_points
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.settings import PipelineSettings
 import numpy as np
 import pytest
