@@ -22,20 +22,14 @@ import sys
 from mvbb_ros.cli.commands import (
     bag_play_command,
     bag_process_command,
-    decompose_and_report,
     decompose_command,
     demo_command,
     evaluate_command,
     EXIT_BROKEN_PIPE,
     EXIT_FAILURE,
-    EXIT_OK,
-    EXIT_USAGE,
     fleet_command,
-    node_assignments,
-    warm_kernels,
 )
 from mvbb_ros.cli.options import add_settings_options
-from mvbb_ros.cli.report import print_report, result_document
 from mvbb_ros.evaluation.gripper import DEFAULT_DEPTH_FACTOR, DEFAULT_WIDTH_FACTOR
 from mvbb_ros.evaluation.spherical import DEFAULT_SPHERICAL_STEP_DEG
 from mvbb_ros.evaluation.wrench import DEFAULT_CONE_EDGES, DEFAULT_FRICTION
@@ -389,22 +383,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f' {error.filename}' if error.filename else ''
         print(f'mvbb {args.command}: error:{where}: {error.strerror or error}', file=sys.stderr)
         return EXIT_FAILURE
-
-
-__all__ = [
-    'build_parser',
-    'decompose_and_report',
-    'EXIT_BROKEN_PIPE',
-    'EXIT_FAILURE',
-    'EXIT_OK',
-    'EXIT_USAGE',
-    'main',
-    'node_assignments',
-    'PLAY_WAIT_S',
-    'print_report',
-    'result_document',
-    'warm_kernels',
-]
 
 
 if __name__ == '__main__':

@@ -35,30 +35,12 @@ from mvbb_ros.geometry.decomposition.result import (
     DEFAULT_GAIN_THRESHOLD,
     DEFAULT_MIN_POINTS,
     Order,
-    ORDERS,
-    PART_SEARCHES,
     PartSearch,
-    STOP_REASONS,
     StopReason,
 )
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = [
-    'decompose',
-    'Decomposition',
-    'DecompositionNode',
-    'DecompositionSettings',
-    'DEFAULT_GAIN_THRESHOLD',
-    'DEFAULT_MIN_POINTS',
-    'Order',
-    'ORDERS',
-    'PART_SEARCHES',
-    'PartSearch',
-    'RESCORE_MARGIN',
-    'STOP_REASONS',
-    'StopReason',
-]
 
 #: With rescoring, another cut replaces the paper's best cut by theta only when its parts'
 #: boxes are smaller by more than this share of the box's volume: near-ties keep the paper's

@@ -43,58 +43,14 @@ from mvbb_ros.geometry.views.fill import (
     fill_down,
     fill_to_box,
     fill_to_far_side,
-    MAX_SAMPLES,
-    MAX_SOLID_SIDE,
     one_per_cell,
     SOLID_CELLS,
 )
-from mvbb_ros.geometry.views.mirror import (
-    AXIS_COS,
-    AXIS_PRIOR,
-    COMPACT_SLACK,
-    find_mirror_plane,
-    MIN_HIDDEN_SHARE,
-    MIRROR_CONE_DEG,
-    MIRROR_OFFSETS,
-    MIRROR_REFINE,
-    MIRROR_SAMPLE,
-    MIRROR_STEP_DEG,
-    MIRROR_TURN_DEG,
-    MirrorPlane,
-    plane_violations,
-)
+from mvbb_ros.geometry.views.mirror import find_mirror_plane, MirrorPlane
 from mvbb_ros.geometry.views.raster import behind_others, view_raster
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = [
-    'AXIS_COS',
-    'AXIS_PRIOR',
-    'COMPACT_SLACK',
-    'complete_view',
-    'CompletedView',
-    'Completion',
-    'COMPLETIONS',
-    'fill_down',
-    'fill_to_box',
-    'fill_to_far_side',
-    'find_mirror_plane',
-    'MAX_SAMPLES',
-    'MAX_SELF_HIDDEN',
-    'MAX_SOLID_SIDE',
-    'MIN_HIDDEN_SHARE',
-    'MIRROR_CONE_DEG',
-    'MIRROR_OFFSETS',
-    'MIRROR_REFINE',
-    'MIRROR_SAMPLE',
-    'MIRROR_STEP_DEG',
-    'MIRROR_TURN_DEG',
-    'MirrorPlane',
-    'plane_violations',
-    'PLATE_RATIO',
-    'SOLID_CELLS',
-    'SURFACE_GAP',
-]
 
 #: How the hidden side is estimated (the ``shape_completion`` setting); see the module doc.
 Completion = Literal['none', 'mirror', 'extrude']
