@@ -1,11 +1,11 @@
 """
 Write the parameter files of config/ from the settings table (SPECS).
 
-Run from the repository root after changing a setting in mvbb_ros/pipeline/settings.py::
+Run from the repository root after changing a setting in mvbb_ros/pipeline/specs.py::
 
     .venv/bin/python tools/make_config.py
 
-``test/test_settings.py`` fails while a file is out of date.
+``test/pipeline/test_settings.py`` fails while a file is out of date.
 """
 
 from pathlib import Path

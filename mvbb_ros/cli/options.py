@@ -1,5 +1,5 @@
 """
-Command-line flags of the pipeline settings, made from :data:`~mvbb_ros.pipeline.settings.SPECS`.
+Command-line flags of the pipeline settings, made from :data:`~mvbb_ros.pipeline.specs.SPECS`.
 
 Every setting gets one flag named like its ROS parameter: ``--gain-threshold`` and
 ``--gain_threshold`` both set ``gain_threshold``, with the parameter's type, range (checked
@@ -15,14 +15,10 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from mvbb_ros.pipeline.settings import (
-    NodeSettings,
-    PipelineSettings,
-    PRESETS,
-    SettingSpec,
-    SPECS,
-)
+from mvbb_ros.pipeline.settings import PipelineSettings, PRESETS
 from mvbb_ros.pipeline.settings_text import parse_assignments, read_params_file
+from mvbb_ros.pipeline.specs import SettingSpec, SPECS
+from mvbb_ros.pipeline.stage_settings import NodeSettings
 
 #: Short aliases of a few flags.
 SHORT_FLAGS: dict[str, str] = {'gain_threshold': '-t'}

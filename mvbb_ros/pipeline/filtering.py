@@ -1,7 +1,7 @@
 """
 Point cloud filtering before the objects and the box fit: crop, voxel grid, outliers.
 
-Each step can be turned off (:class:`~mvbb_ros.pipeline.settings.FilterSettings`, whose
+Each step can be turned off (:class:`~mvbb_ros.pipeline.stage_settings.FilterSettings`, whose
 defaults turn them all off; the node turns the voxel grid and the outliers on). Steps run in
 that order: cropping first makes the others cheaper, and outlier statistics are steadier on the
 evenly spaced voxel centroids than on raw sensor points. The voxel grid and the crop are

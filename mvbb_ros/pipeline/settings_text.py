@@ -3,7 +3,7 @@ The settings as text: ``name:=value`` assignments, ROS parameter files and ``con
 
 ``mvbb ... -p name:=value`` and the demo read assignments (:func:`parse_assignments`), and
 ``--params-file`` a ROS parameter file (:func:`read_params_file`), as ROS does: values are
-YAML scalars or lists, checked against :data:`~mvbb_ros.pipeline.settings.SPECS`. The files
+YAML scalars or lists, checked against :data:`~mvbb_ros.pipeline.specs.SPECS`. The files
 of ``config/`` are written from the same table (:func:`config_files`, ``tools/make_config.py``).
 No ROS import.
 """
@@ -22,10 +22,9 @@ from mvbb_ros.pipeline.settings import (
     is_ros_parameter,
     PipelineSettings,
     PRESETS,
-    SPEC_BY_NAME,
-    SPECS,
     unknown_setting_reason,
 )
+from mvbb_ros.pipeline.specs import SPEC_BY_NAME, SPECS
 import yaml
 
 
@@ -176,7 +175,7 @@ CONFIG_FILES: dict[str, tuple[str, str]] = {
 Default parameters of the mvbb_ros decomposer node (every one is declared with a
 description and range; `ros2 param describe /decomposer <name>` shows them).
 Use: ros2 run mvbb_ros decomposer --ros-args --params-file <this file>
-Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test checks it).
+Made from SPECS in mvbb_ros/pipeline/specs.py by tools/make_config.py (a test checks it).
 """,
     ),
     'paper.yaml': (
@@ -185,7 +184,7 @@ Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test
 The paper's algorithm (Huebner et al. 2008) in the decomposer node: no filters, min_points 10,
 no cap on the boxes; the same as `mvbb decompose --preset paper` and decompose() in Python.
 Use: ros2 run mvbb_ros decomposer --ros-args --params-file <this file>
-Made from SPECS in mvbb_ros/pipeline/settings.py by tools/make_config.py (a test checks it).
+Made from SPECS in mvbb_ros/pipeline/specs.py by tools/make_config.py (a test checks it).
 """,
     ),
 }

@@ -76,8 +76,9 @@ def wants_help(args: Sequence[str]) -> bool:
 
 def usage() -> str:
     """Return the help text: what the node does, its topics and every parameter's default."""
-    from mvbb_ros.pipeline.settings import defaults, SPECS
+    from mvbb_ros.pipeline.settings import defaults
     from mvbb_ros.pipeline.settings_text import format_assignment
+    from mvbb_ros.pipeline.specs import SPECS
 
     values = defaults()
     lines = [f'  {format_assignment(spec.name, values[spec.name])}' for spec in SPECS]

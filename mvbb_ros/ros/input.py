@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from mvbb_ros.pipeline.settings import InputReliability
+from mvbb_ros.pipeline.stage_settings import InputReliability
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import (
     QoSMessageLostInfo,

@@ -22,7 +22,7 @@ Topics (relative names, remappable):
 
 Outputs are reliable and transient local (keep last 1: a subscriber that comes later, such as
 RViz, gets the last result) and stamped with the input header. Every tunable is a declared
-parameter (:mod:`mvbb_ros.pipeline.settings`) with a typed value; a change is validated,
+parameter (:mod:`mvbb_ros.pipeline.specs`) with a typed value; a change is validated,
 refused with a reason when bad, and the last cloud is processed again at once so tuning on a
 paused bag shows its effect. A parameter of an unknown name (a misspelt key in a parameter file)
 stops the node at start-up, naming the key and the known names.
@@ -46,12 +46,10 @@ from mvbb_ros.pipeline.result import PipelineResult
 from mvbb_ros.pipeline.settings import (
     is_ros_parameter,
     PipelineSettings,
-    SettingSpec,
-    SPEC_BY_NAME,
-    SPECS,
     unknown_setting_reason,
     validate_setting,
 )
+from mvbb_ros.pipeline.specs import SettingSpec, SPEC_BY_NAME, SPECS
 from mvbb_ros.ros.diagnostics import OverloadWatch, ReceptionLog
 from mvbb_ros.ros.input import CloudInput
 from mvbb_ros.ros.messages import cleared_tree, diagnostic_status, output_messages, OUTPUT_TYPES

@@ -16,23 +16,19 @@ from mvbb_ros.geometry.grasping.hypotheses import APPROACH_AXES, GraspSettings, 
 from mvbb_ros.geometry.grasping.refinement_settings import RefinementSettings
 from mvbb_ros.geometry.views.completion import COMPLETIONS
 from mvbb_ros.pipeline.scene import SceneSettings
-from mvbb_ros.pipeline.settings import (
-    ExecutionSettings,
-    FilterSettings,
-    NodeSettings,
-    PRESETS,
-    SPEC_BY_NAME,
-    SPECS,
-    STAGE_DEFAULT,
-    STAGES,
-    validate_setting,
-    ViewSettings,
-)
+from mvbb_ros.pipeline.settings import PRESETS, STAGES, validate_setting
 from mvbb_ros.pipeline.settings_text import (
     config_files,
     format_assignment,
     parse_assignments,
     read_params_file,
+)
+from mvbb_ros.pipeline.specs import SPEC_BY_NAME, SPECS, STAGE_DEFAULT
+from mvbb_ros.pipeline.stage_settings import (
+    ExecutionSettings,
+    FilterSettings,
+    NodeSettings,
+    ViewSettings,
 )
 import numpy as np
 import pytest

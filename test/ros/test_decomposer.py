@@ -9,7 +9,8 @@ import subprocess
 import sys
 import time
 
-from mvbb_ros.pipeline.settings import defaults, SPECS
+from mvbb_ros.pipeline.settings import defaults
+from mvbb_ros.pipeline.specs import SPECS
 from mvbb_ros.ros.decomposer import main, ros_log_fallback, wants_help
 import pytest
 import rclpy

@@ -8,13 +8,9 @@ from pathlib import Path
 import subprocess
 import sys
 
-from mvbb_ros.pipeline.settings import (
-    PipelineSettings,
-    settings_from_mapping,
-    SPECS,
-    validate_setting,
-)
+from mvbb_ros.pipeline.settings import PipelineSettings, settings_from_mapping, validate_setting
 from mvbb_ros.pipeline.settings_text import parse_assignments, read_params_file
+from mvbb_ros.pipeline.specs import SPECS
 from mvbb_ros.ros.encode import create_cloud_xyz
 import mvbb_ros.ros.node
 from mvbb_ros.ros.node import DecomposerNode, UnknownParameterError
