@@ -32,7 +32,7 @@ ROLLS: tuple[float, ...] = (-20.0, 0.0, 20.0)
 
 @dataclass
 class _Candidates:
-    """Candidate grasp lines: origin, approach, closing, box, face and roll (seeds: -1 = none)."""
+    """Candidate grasp lines, in batches: origins, approach and closing directions, box index."""
 
     origins: list[FloatArray] = field(default_factory=list)
     approaches: list[FloatArray] = field(default_factory=list)
