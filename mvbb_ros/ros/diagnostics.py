@@ -32,10 +32,10 @@ class ReceptionLog:
         self._last: float | None = None
         self._start = clock()
 
-    def record(self) -> None:
-        """Note that a cloud arrived now."""
+    def record(self, count: int = 1) -> None:
+        """Note that `count` clouds arrived now."""
         now = self._clock()
-        self._times.append(now)
+        self._times.extend([now] * count)
         self._last = now
         self._expire(now)
 

@@ -16,14 +16,24 @@ The history is keep last ``input_depth``. A change of the wanted QoS (a paramete
 new publisher) destroys the subscription and creates it again. What the middleware reports is
 counted: clouds lost on the way (the ``message_lost`` event, where the RMW supports it) and
 publishers whose QoS is incompatible.
+
+With a `ready` test (the node's: its frame worker has room), the executor takes a cloud only
+while it passes: the subscription sits in a callback group that the executor skips until then
+(the owner wakes the executor when it may pass again). The clouds that arrive meanwhile replace
+each other in the keep-last history and are never taken, which spares the executor the cost of
+taking clouds that would be dropped. Their number is read from the publisher's sequence numbers
+(:attr:`CloudInput.skipped`, while one publisher is matched: the message info does not say
+which publisher sent a cloud).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, cast
 
 from mvbb_ros.pipeline.stage_settings import InputReliability
+from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import (
     QoSMessageLostInfo,
@@ -32,6 +42,7 @@ from rclpy.event_handler import (
     SubscriptionEventCallbacks,
     UnsupportedEventTypeError,
 )
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
@@ -85,16 +96,28 @@ class CloudInput:
     :ivar incompatible: incompatible-QoS events (a publisher the subscription cannot hear).
     :ivar matched: publishers matched with the current subscription.
     :ivar created: how many subscriptions were created (1 + re-creations).
+    :ivar skipped: clouds a publisher sent that were never taken, replaced in the history by
+        newer ones (the node was busy) or, best effort, lost on the way: the gaps in the
+        publisher's sequence numbers while one publisher is matched.
+
+    :param callback: called with each cloud taken and how many of the publisher's clouds were
+        skipped just before it.
+    :param ready: clouds are taken only while this returns True (None: always); the owner
+        wakes the executor when it may have turned True.
     """
 
     def __init__(
         self,
         node: Node,
-        callback: Callable[[PointCloud2], None],
+        callback: Callable[[PointCloud2, int], None],
         mode: InputReliability,
         depth: int,
+        ready: Callable[[], bool] | None = None,
     ) -> None:
         self._node = node
+        self._gate = None if ready is None else _Gate(ready)
+        self.skipped = 0
+        self._last_sequence: int | None = None
         self._callback = callback
         self._mode: InputReliability = mode
         self._wanted_depth = depth
@@ -179,7 +202,14 @@ class CloudInput:
                 message_lost=self._on_lost if report_lost else None,
             )
             return self._node.create_subscription(
-                PointCloud2, INPUT_TOPIC, self._callback, qos, event_callbacks=events
+                PointCloud2,
+                INPUT_TOPIC,
+                # rclpy passes the message info to a callback of two parameters; its annotation
+                # names the one-parameter form only.
+                cast(Callable[[PointCloud2], None], self._take),
+                qos,
+                event_callbacks=events,
+                callback_group=self._gate,
             )
 
         if self.lost is not None:
@@ -189,8 +219,44 @@ class CloudInput:
                 self.lost = None
         return create(report_lost=False)
 
+    def take_waiting(self) -> bool:
+        """
+        Take the oldest cloud the subscription holds now, if any, and pass it on (any thread).
+
+        :return: whether a cloud was taken.
+        """
+        subscription = self._subscription
+        if subscription is None:
+            return False
+        try:
+            with subscription.handle:
+                taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+        except InvalidHandle:  # destroyed meanwhile (a re-creation, the node's end)
+            return False
+        if taken is None:
+            return False
+        self._take(*taken)
+        return True
+
+    def _take(self, cloud: PointCloud2, info: dict[str, Any]) -> None:
+        sequence = info.get('publication_sequence_number')
+        gap = 0
+        if not isinstance(sequence, int):
+            sequence = None
+        elif (
+            self.matched == 1
+            and self._last_sequence is not None
+            and sequence > self._last_sequence
+        ):
+            gap = sequence - self._last_sequence - 1
+        self._last_sequence = sequence
+        self.skipped += gap
+        self._callback(cloud, gap)
+
     def _on_matched(self, info: QoSSubscriptionMatchedInfo) -> None:
         self.matched = int(info.current_count)
+        # Another publisher (or none): its sequence numbers are not comparable with the last.
+        self._last_sequence = None
         self._update_trigger.trigger()
 
     def _on_incompatible(self, info: QoSRequestedIncompatibleQoSInfo) -> None:
@@ -216,3 +282,27 @@ class CloudInput:
 
 def _node_name(namespace: str, name: str) -> str:
     return f'{namespace.rstrip("/")}/{name}'
+
+
+class _Gate(CallbackGroup):
+    """
+    The input's callback group: the executor waits for and takes clouds only while `ready`.
+
+    rclpy's executor leaves an entity out of its wait set while the entity's group cannot
+    execute, so a closed gate costs nothing; callbacks may run concurrently (reentrant).
+    """
+
+    def __init__(self, ready: Callable[[], bool]) -> None:
+        super().__init__()
+        self._ready = ready
+
+    def can_execute(self, entity: Any) -> bool:
+        """Tell whether the executor may take a cloud now."""
+        return self._ready()
+
+    def beginning_execution(self, entity: Any) -> bool:
+        """Start a callback (always allowed: the gate was tested when the cloud was taken)."""
+        return True
+
+    def ending_execution(self, entity: Any) -> None:
+        """End a callback (nothing to release)."""

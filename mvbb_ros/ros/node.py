@@ -220,16 +220,23 @@ class DecomposerNode(Node):
         # Before the subscription: the first cloud must not wait for the compiler (a first run
         # compiles the kernels and says so in one line; later runs load them from the cache).
         warm_up_logged(self.get_logger().info)
+        # Frames run on their own thread: services and diagnostics answer during a frame. As
+        # many clouds wait for it as the input keeps (input_depth); the input takes a cloud only
+        # when the worker has room. After a frame the worker takes the waiting cloud itself,
+        # then wakes the executor, which waits for the next.
+        self._worker = FrameWorker(
+            self._run_frame,
+            name='decomposer frames',
+            depth=self._settings.node.input_depth,
+            take=self._take_waiting,
+            on_room=self._wake,
+        )
         self._input = CloudInput(
             self,
             self._on_cloud,
             self._settings.node.input_reliability,
             self._settings.node.input_depth,
-        )
-        # Frames run on their own thread: services and diagnostics answer during a frame. As
-        # many clouds wait for it as the input keeps (input_depth).
-        self._worker = FrameWorker(
-            self._run_frame, name='decomposer frames', depth=self._settings.node.input_depth
+            ready=self._worker.has_room,
         )
         self._overload = OverloadWatch()
         # The wall clock: diagnostics go on while a bag is paused under use_sim_time.
@@ -346,11 +353,26 @@ class DecomposerNode(Node):
 
     # Processing ----------------------------------------------------------------------------------
 
-    def _on_cloud(self, cloud: PointCloud2) -> None:
-        self._stats['clouds_received'] += 1
-        self._receptions.record()
+    def _on_cloud(self, cloud: PointCloud2, skipped: int) -> None:
+        # The clouds replaced in the input's history before this one reached the node too.
+        self._stats['clouds_received'] += 1 + skipped
+        self._receptions.record(1 + skipped)
         self._last_cloud = cloud
         self._worker.submit(cloud)
+
+    def _take_waiting(self) -> None:
+        """Take the cloud that waits in the input, if any (on the worker, after a frame)."""
+        try:
+            self._input.take_waiting()
+        except Exception as error:  # the worker must go on: the executor takes it instead
+            if self._due('take'):
+                self.get_logger().error(f'taking the next cloud failed: {error!r}')
+
+    def _wake(self) -> None:
+        """Wake the executor: the frame worker has room, the input may take the newest cloud."""
+        executor = self.executor
+        if executor is not None:
+            executor.wake()
 
     def _run_frame(self, cloud: PointCloud2 | None) -> None:
         """Process a new cloud, or (None) the last cloud again; on the worker thread."""
@@ -364,7 +386,7 @@ class DecomposerNode(Node):
         """Return the clouds counted so far, as the diagnostics report them."""
         return {
             **self._stats,
-            'clouds_skipped_busy': self._worker.skipped,
+            'clouds_skipped_busy': self._worker.skipped + self._input.skipped,
             'parameter_changes_merged': self._worker.merged,
         }
 
@@ -477,9 +499,10 @@ class DecomposerNode(Node):
 
     def _publish_diagnostics(self) -> None:
         result = self._last_result
-        values: dict[str, object] = dict(self.diagnostic_counts())
+        counts = self.diagnostic_counts()
+        values: dict[str, object] = dict(counts)
         input_values, problems = self._input_values()
-        overload = self._overload.update(self._stats['clouds_received'], self._worker.skipped)
+        overload = self._overload.update(counts['clouds_received'], counts['clouds_skipped_busy'])
         if overload is not None:
             problems.append(overload)
         values.update(input_values)

@@ -77,6 +77,44 @@ def test_a_deeper_worker_keeps_the_newest_clouds_in_order():
         assert finish(frame, worker) == ['first', 'b', 'c', 'd']
 
 
+def test_room_is_fewer_clouds_than_the_depth_and_each_frame_end_calls_back():
+    ends = []
+    frame = Blocking()
+    worker = FrameWorker(frame, depth=2, on_room=lambda: ends.append(worker.has_room()))
+    try:
+        assert worker.has_room()
+        worker.submit('first')
+        assert frame.started.wait(10.0)
+        assert worker.has_room(), 'one busy of two'
+        worker.submit('second')
+        assert not worker.has_room(), 'one busy and one waiting: full'
+        frame.release.set()
+        assert worker.wait_idle(10.0)
+        assert frame.calls == ['first', 'second'] and worker.has_room()
+        assert len(ends) == 2  # after each frame, on the worker's thread
+    finally:
+        frame.release.set()
+        worker.stop()
+
+
+def test_a_cloud_taken_after_the_frame_goes_before_the_reprocessing():
+    waiting = ['newest']
+    frame = Blocking()
+    worker = FrameWorker(frame, take=lambda: waiting and worker.submit(waiting.pop()))
+    try:
+        worker.submit('first')
+        assert frame.started.wait(10.0)
+        worker.again()  # settings changed during the frame
+        assert not worker.has_room()
+        frame.release.set()
+        assert worker.wait_idle(10.0)
+        # The new cloud has the new settings anyway: no re-processing of 'first'.
+        assert frame.calls == ['first', 'newest']
+    finally:
+        frame.release.set()
+        worker.stop()
+
+
 def test_a_shallower_depth_drops_the_oldest_waiting_clouds():
     with busy_worker(depth=5) as (frame, worker):
         for name in ('a', 'b', 'c'):
@@ -140,20 +178,27 @@ def test_services_answer_and_changes_merge_while_a_frame_is_processed(monkeypatc
             assert graph.spin_until(future.done, timeout_s=10.0)
             assert future.result().results[0].successful
         received = graph.node.diagnostic_counts
-        for sec in (2, 3, 4):  # one at a time: the input keeps the last cloud only
-            before = received()['clouds_received']
+        # The newer clouds reach the process (a probe hears them) but the node does not take
+        # them while its frame runs: they replace each other in the input's history.
+        heard: list = []
+        graph.probe.create_subscription(type(_cloud(0)), 'cloud_in', heard.append, 10)
+        for sec in (2, 3, 4):
             publisher.publish(_cloud(sec))
-            assert graph.spin_until(lambda count=before: received()['clouds_received'] > count)
-        assert graph.node.frames.skipped == 2
+        assert graph.spin_until(lambda: [c.header.stamp.sec for c in heard][-1:] == [4])
+        assert graph.spin_until(lambda: False, timeout_s=0.5) is False  # time to take any
+        assert received()['clouds_received'] == 1, 'a cloud was taken during the frame'
         assert not calls[1:], 'nothing else ran during the frame'
         release.set()
         assert graph.spin_until(lambda: graph.answer(4) is not None, timeout_s=30.0)
         assert graph.spin_until(graph.node.frames.idle, timeout_s=30.0)
         # The blocked frame, then the newest cloud with the last setting; the older clouds
-        # and the earlier changes were merged away.
+        # and the earlier changes were merged away, the clouds counted from their sequence.
         assert calls[0] == 0.94 and calls[1:] == [0.97]
-        assert graph.answer(1) is not None and graph.answer(2) is None
+        assert graph.answer(1) is not None
+        assert graph.answer(2) is None and graph.answer(3) is None
         assert received()['clouds_skipped_busy'] == 2
+        assert received()['clouds_received'] == 4
+        assert graph.node.frames.skipped == 0, 'nothing waited in the worker'
     finally:
         release.set()
         graph.close()
