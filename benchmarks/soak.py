@@ -4,7 +4,11 @@ Soak test: stream 300k-point clouds at 30 Hz into the decomposer for a number of
 Starts the installed `decomposer` as its own process (so its memory is its own), publishes
 organized depth frames of a synthetic object (or a given .npy cloud), listens to ~/boxes, and
 reports clouds sent, answered and dropped, latency percentiles (publish to the boxes received,
-matched by stamp) and the node's resident memory over time.
+matched by stamp), the node's resident memory over time and its CPU time while the clouds
+stream, by thread: the executor (the process's main thread), the middleware (Fast DDS's
+``dds.*`` threads) and the frames (every other thread: the frame worker and its helpers), as
+shares of the streaming time (100 % is one core kept busy). A node whose threads add up to its
+cores cannot keep up however fast the transport is.
 
     .venv/bin/python benchmarks/soak.py --minutes 10
     .venv/bin/python benchmarks/soak.py --cloud ../shared/data/models/bunny_vertices.npy \
@@ -67,6 +71,9 @@ class Figures:
     #: The node's ``frame_budget_level`` in each of its diagnostics (once a second; empty
     #: without a ``frame_time_budget``): the level the next cloud runs at.
     budget_levels: tuple[int, ...] = ()
+    #: The node's CPU time while streaming by role (:func:`thread_cpu_s`), as shares of the
+    #: streaming time.
+    cpu: dict[str, float] | None = None
 
     @property
     def answered(self) -> int:
@@ -107,6 +114,31 @@ class Figures:
 def warm_up_s(duration_s: float) -> float:
     """Return the warm-up of a run: its first minute, or its first third when shorter."""
     return min(WARM_UP_S, duration_s / 3.0)
+
+
+#: The roles of the node's threads in :func:`thread_cpu_s`.
+THREAD_ROLES = ('frames', 'middleware', 'executor')
+
+
+def thread_cpu_s(process: psutil.Process) -> dict[str, float]:
+    """
+    Return the CPU seconds (user and system) the process's threads used so far, by role.
+
+    ``executor`` is the main thread (rclpy spins there), ``middleware`` the threads Linux names
+    ``dds.*`` (Fast DDS's receive and event threads), ``frames`` every other thread.
+    """
+    seconds = dict.fromkeys(THREAD_ROLES, 0.0)
+    for thread in process.threads():
+        if thread.id == process.pid:
+            role = 'executor'
+        else:
+            try:
+                name = Path(f'/proc/{process.pid}/task/{thread.id}/comm').read_text()
+            except OSError:  # the thread ended meanwhile
+                name = ''
+            role = 'middleware' if name.startswith('dds.') else 'frames'
+        seconds[role] += thread.user_time + thread.system_time
+    return seconds
 
 
 def empty_node(reliability: str) -> int:
@@ -201,6 +233,7 @@ def stream(
     )
     count = 0
     memory: list[tuple[float, int]] = []
+    cpu: dict[str, float] | None = None
     elapsed = 0.0
     exit_code = None
     try:
@@ -212,6 +245,7 @@ def stream(
             why = 'is not subscribed' if code is None else f'exited with code {code}'
             raise RuntimeError(f'{" ".join(command)}: {why} after 60 s')
         memory.append((0.0, process.memory_info().rss))
+        cpu_before = thread_cpu_s(process)
         period = 1.0 / args.rate
         start = time.monotonic()
         end = start + args.minutes * 60.0
@@ -233,6 +267,11 @@ def stream(
                 next_memory += args.memory_every
             rclpy.spin_once(client, timeout_sec=max(0.0, min(next_send, end) - time.monotonic()))
         elapsed = time.monotonic() - start
+        cpu_after = thread_cpu_s(process)
+        cpu = {
+            role: (cpu_after[role] - cpu_before[role]) / max(elapsed, 1e-9)
+            for role in THREAD_ROLES
+        }
         drain = time.monotonic() + 3.0
         while time.monotonic() < drain:
             rclpy.spin_once(client, timeout_sec=0.05)
@@ -243,7 +282,9 @@ def stream(
         client.destroy_subscription(subscription)
         client.destroy_subscription(diagnostics)
         client.destroy_publisher(publisher)
-    return Figures(elapsed, count, np.array(latencies) * 1e3, memory, exit_code, tuple(levels))
+    return Figures(
+        elapsed, count, np.array(latencies) * 1e3, memory, exit_code, tuple(levels), cpu
+    )
 
 
 def report(name: str, figures: Figures) -> None:
@@ -264,6 +305,12 @@ def report(name: str, figures: Figures) -> None:
         + ', '.join(f'{seconds:.0f} s {rss / 2**20:.1f}' for seconds, rss in figures.memory)
     )
     print(f'  memory growth after the warm-up (peaks): {100.0 * figures.growth:+.1f}%')
+    if figures.cpu is not None:
+        parts = ', '.join(f'{role} {100.0 * figures.cpu[role]:.0f} %' for role in THREAD_ROLES)
+        print(
+            f'  CPU while streaming: {100.0 * sum(figures.cpu.values()):.0f} % of one core '
+            f'({parts})'
+        )
     if figures.budget_levels:
         seconds = np.bincount(figures.budget_levels)
         spread = ', '.join(f'{level}: {int(n)}' for level, n in enumerate(seconds) if n)

@@ -73,3 +73,50 @@ def test_the_report_says_how_long_the_node_ran_at_each_budget_level(soak, capsys
     )
     soak.report('decomposer', _figures(soak, memory))
     assert 'budget level' not in capsys.readouterr().out
+
+
+CHILD = r"""
+import ctypes, threading, time
+
+spun = []
+
+def spin(seconds, name=None):
+    if name is not None:  # as Fast DDS names its threads (prctl PR_SET_NAME)
+        ctypes.CDLL(None).prctl(15, name.encode(), 0, 0, 0)
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
+    spun.append(name)
+    time.sleep(60)  # alive while measured: an ended thread leaves /proc
+
+for arguments in ((0.6, 'dds.shm.7'), (0.3,)):
+    threading.Thread(target=spin, args=arguments, daemon=True).start()
+spin_main = time.thread_time() + 0.2
+while time.thread_time() < spin_main:
+    pass
+while len(spun) < 2:
+    time.sleep(0.01)
+print('done', flush=True)
+time.sleep(60)
+"""
+
+
+def test_the_node_cpu_is_split_by_thread_role(soak):
+    import subprocess
+    import sys
+
+    import psutil
+
+    child = subprocess.Popen([sys.executable, '-c', CHILD], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == 'done'
+        seconds = soak.thread_cpu_s(psutil.Process(child.pid))
+    finally:
+        child.kill()
+        child.wait()
+    assert set(seconds) == set(soak.THREAD_ROLES)
+    # Each thread's spin is its own CPU time (thread_time), plus the interpreter's start; Linux
+    # counts it in clock ticks (10 ms).
+    assert 0.55 <= seconds['middleware'] < 0.8
+    assert 0.25 <= seconds['frames'] < 0.5
+    assert 0.15 <= seconds['executor'] < 1.0
