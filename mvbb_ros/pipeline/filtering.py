@@ -50,11 +50,14 @@ Why the second pass is fast:
   per run on a depth frame at 5 mm), the voxel's sums live in registers; they are loaded when
   the run starts and stored when it ends, so every point is still added in input order (the
   same rounding as Open3D's per-point sums).
-- *Lookup on change only*, in an open-addressing hash table keyed by the three voxel indices.
-  One structure for every extent: a segmented object and a lidar sweep over hundreds of metres
-  alike (a dense grid of slot numbers was only a little faster on objects, not worth a second
-  implementation). Slots and table start at 4096 and double, so memory is linear in the number
-  of occupied voxels, never in the extent.
+- *Lookup on change only*: in a dense grid of slot numbers when the grid has at most
+  :data:`DENSE_CELLS_PER_POINT` cells per point (an object or a work surface at 5 mm: one array
+  read, no hashing), else in an open-addressing hash table keyed by the three voxel indices (a
+  lidar sweep over hundreds of metres). On a depth frame's runs the two cost the same; on
+  points in no particular order (a resampled or merged cloud: a lookup at almost every point)
+  the dense grid takes about a quarter off the pass (``docs/performance.md``). Slots (and the
+  hash table) start at 4096 and double, so memory is linear in the number of occupied voxels
+  or, for the dense grid, bounded by the number of points.
 
 Limits: as Open3D, each axis may hold up to ``2**31 - 1`` voxels; a larger grid (a voxel too
 small for the extent, or absurd coordinates such as 1e38) is refused with a ValueError before
@@ -257,6 +260,11 @@ def _block_voxels(
 _BLOCK = 512
 #: Voxel slots to start with (doubled as needed).
 _FIRST_CAPACITY = 4096
+#: A grid of at most this many cells per point (inside the crop box) looks its voxels up in a
+#: dense array of slot numbers instead of the hash table: at most 3 bytes of table a point, and
+#: faster up to there on points in random order (0.75 cells a point: 18.6 against 25.6 ms; one
+#: cell a point: 42 against 38 ms, 300k points).
+DENSE_CELLS_PER_POINT = 0.75
 
 
 @njit
@@ -278,12 +286,14 @@ def _group(
     counts: Any,
     state: Any,
     running: Any,
+    dense: Any,
 ) -> Any:
     """
     Add points to their voxels from ``state[5]`` on, until the end or until the arrays are full.
 
-    `table` (open addressing, linear probing) maps a voxel to its slot in `sums`, `counts` and
-    `voxels`; slots are given in the order voxels are first met. The loop state
+    `table` maps a voxel to its slot in `sums`, `counts` and `voxels`: with `dense`, one entry
+    per grid cell (C order of the voxel indices), else a hash table (open addressing, linear
+    probing); slots are given in the order voxels are first met. The loop state
     lives in `state` (current voxel x, y, z, its slot, its count, slots used, next point) and
     `running` (the current voxel's sums): while consecutive points stay in one voxel its sums
     stay in registers, loaded when the run starts and stored when it ends, so each point is
@@ -317,16 +327,21 @@ def _group(
                 continue
             index_x, index_y, index_z = block_x[j], block_y[j], block_z[j]
             if index_x != current_x or index_y != current_y or index_z != current_z:
-                at = _hash(index_x, index_y, index_z, mask)
-                found = table[at]
-                while found >= 0 and not (
-                    voxels[found, 0] == index_x
-                    and voxels[found, 1] == index_y
-                    and voxels[found, 2] == index_z
-                ):
-                    at = (at + 1) & np.int64(mask)
+                if dense:  # one cell per entry: the entry is this voxel's
+                    at = (index_x * shape[1] + index_y) * shape[2] + index_z
                     found = table[at]
-                if found < 0 and (used == sums.shape[0] or 2 * (used + 1) > table.shape[0]):
+                else:
+                    at = _hash(index_x, index_y, index_z, mask)
+                    found = table[at]
+                    while found >= 0 and not (
+                        voxels[found, 0] == index_x
+                        and voxels[found, 1] == index_y
+                        and voxels[found, 2] == index_z
+                    ):
+                        at = (at + 1) & np.int64(mask)
+                        found = table[at]
+                full = used == sums.shape[0] or (not dense and 2 * (used + 1) > table.shape[0])
+                if found < 0 and full:
                     _save(state, current_x, current_y, current_z, slot, count, used)
                     state[6] = start + j
                     running[0], running[1], running[2] = sum_x, sum_y, sum_z
@@ -411,13 +426,19 @@ def _voxel_grid(
     Group the points (inside the crop box) by voxel; return centroids, counts, voxels, success.
 
     Voxels come in the order they are first met. `inside` is the number of points inside the
-    crop box, `shape` the number of voxels along each axis. Slots and table start small and
-    double, so memory stays linear in the number of voxels, whatever the extent.
+    crop box, `shape` the number of voxels along each axis. Slots (and the hash table) start
+    small and double, so memory stays linear in the number of voxels whatever the extent, or in
+    the number of points for the dense table (:data:`DENSE_CELLS_PER_POINT`).
     """
     capacity = max(1, min(inside, _FIRST_CAPACITY))
+    # In float: the product of three axes of up to 2**31 voxels overflows int64.
+    cells = float(shape[0]) * float(shape[1]) * float(shape[2])
+    dense = cells <= DENSE_CELLS_PER_POINT * inside
     length = 16  # a power of two (the hash is masked), at least twice the slots
     while length < 2 * capacity:
         length *= 2
+    if dense:
+        length = shape[0] * shape[1] * shape[2]
     table = np.full(length, -1, dtype=np.int32)
     sums = np.empty((capacity, 3), dtype=np.float64)
     counts = np.empty((capacity, 1), dtype=np.int64)
@@ -427,7 +448,7 @@ def _voxel_grid(
     while True:
         position = _group(
             points, box, crop, anchor, size, shape, table, voxels, sums, counts[:, 0],
-            state, running,
+            state, running, dense,
         )  # fmt: skip
         if position == points.shape[0]:
             break
@@ -439,7 +460,7 @@ def _voxel_grid(
             sums = _doubled(sums, used)
             counts = _doubled(counts, used)
             voxels = _doubled(voxels, used)
-        if 2 * (used + 1) > table.shape[0]:
+        if not dense and 2 * (used + 1) > table.shape[0]:
             table = _rehashed(voxels, used, 2 * table.shape[0])
     used = state[5]
     centroids = np.empty((used, 3), dtype=np.float64)

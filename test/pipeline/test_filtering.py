@@ -17,6 +17,7 @@ from hypothesis.extra import numpy as hnp
 from mvbb_ros.pipeline.filtering import (
     _radix_order,
     crop_points,
+    DENSE_CELLS_PER_POINT,
     filter_points,
     voxel_down_sample,
 )
@@ -169,6 +170,28 @@ def test_points_on_voxel_faces_fall_where_the_division_puts_them():
     points = np.vstack([[[-2.0, -2.0, -2.0]], points])
     centroids, counts = voxel_down_sample(points, size)
     expected, expected_counts = reference_centroids(points, size)
+    np.testing.assert_array_equal(centroids, expected)
+    np.testing.assert_array_equal(counts, expected_counts)
+
+
+@pytest.mark.parametrize('cells_per_point', [0.1, 0.7, 0.8, 3.0])
+def test_dense_and_hashed_lookups_give_the_definition(cells_per_point):
+    """Either side of DENSE_CELLS_PER_POINT (grid cells per point), points in random order."""
+    assert DENSE_CELLS_PER_POINT == 0.75
+    rng = np.random.default_rng(7)
+    side, size = 17, 0.01
+    grid = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing='ij'), -1).reshape(-1, 3)
+    count = round(len(grid) / cells_per_point)
+    # The two far corners fix the grid's extent; one point at the middle of each occupied voxel
+    # (the lowest puts the grid's anchor on the voxels' corners), the rest above it in them.
+    occupied = grid[np.r_[0, len(grid) - 1, 1 + rng.permutation(len(grid) - 2)]]
+    occupied = occupied[: min(count, len(grid))]
+    extra = occupied[rng.integers(0, len(occupied), count - len(occupied))]
+    points = np.concatenate([occupied + 0.5, extra + rng.uniform(0.5, 0.9, size=(len(extra), 3))])
+    points = points[rng.permutation(len(points))] * size
+    centroids, counts = voxel_down_sample(points, size)
+    expected, expected_counts = reference_centroids(points, size)
+    assert len(centroids) == len(occupied)
     np.testing.assert_array_equal(centroids, expected)
     np.testing.assert_array_equal(counts, expected_counts)
 
