@@ -342,6 +342,8 @@ def find_scene(
     least = max(3, settings.support_min_fraction * len(points))
     reasons = []
     for number in range(CANDIDATES):
+        if np.count_nonzero(rest) < least:
+            break  # no patch of the points left can hold support_min_fraction of them
         candidate = _next_plane(points, rest, distance, unit_up, eye, cell)
         if candidate is None or len(candidate.patch) < least:
             break

@@ -305,3 +305,26 @@ def test_an_objects_face_with_the_object_behind_it_holds_nothing_standing():
     assert scene.support is None and scene.kept is None
     assert scene.reason is not None
     assert scene.reason.startswith('no support: plane 0: 0 points stand on it'), scene.reason
+
+
+def test_no_plane_is_fitted_to_fewer_points_than_a_support_holds(monkeypatch):
+    """A plate's face holds nearly every point: what is left cannot hold 15 %, and is not fitted."""
+    import mvbb_ros.pipeline.scene as scene_module
+
+    step = 0.005
+    face = _grid((-0.1, -0.1), (0.1, 0.1), step)
+    points = np.column_stack([face, np.full(len(face), 0.5)])
+    points = np.concatenate([points, points[:20] + (0.0, 0.0, 0.02)])  # a few behind it
+    fitted = []
+
+    def counted(points, rest, *args):
+        fitted.append(int(np.count_nonzero(rest)))
+        return next_plane(points, rest, *args)
+
+    next_plane = scene_module._next_plane
+    monkeypatch.setattr(scene_module, '_next_plane', counted)
+    settings = SceneSettings(support_plane='auto')
+    scene = find_scene(points, settings, spacing=step, min_points=10)
+    assert scene.support is None and scene.kept is None
+    assert fitted == [len(points)], fitted  # the 20 left are under 15 % of 1,701
+    assert scene.reason == 'no support: plane 0: 0 points stand on it', scene.reason
