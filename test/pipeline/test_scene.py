@@ -308,7 +308,7 @@ def test_an_objects_face_with_the_object_behind_it_holds_nothing_standing():
 
 
 def test_no_plane_is_fitted_to_fewer_points_than_a_support_holds(monkeypatch):
-    """A plate's face holds nearly every point: what is left cannot hold 15 %, and is not fitted."""
+    """A plate's face holds nearly every point: the rest cannot hold 15 %, and is not fitted."""
     import mvbb_ros.pipeline.scene as scene_module
 
     step = 0.005
