@@ -206,6 +206,46 @@ def test_services_answer_and_changes_merge_while_a_frame_is_processed(monkeypatc
 
 
 @pytest.mark.ros
+def test_taking_every_cloud_takes_them_during_a_frame_and_runs_the_newest(monkeypatch):
+    """The take policy's other way: each cloud is taken as it comes, the newest runs next."""
+    real_process_cloud = mvbb_ros.ros.node.process_cloud
+    release, started = threading.Event(), threading.Event()
+    stamps = []
+
+    def slow_first(cloud, settings, **options):
+        stamps.append(cloud.header.stamp.sec)
+        if len(stamps) == 1:
+            started.set()
+            assert release.wait(30.0)
+        return real_process_cloud(cloud, settings, **options)
+
+    monkeypatch.setattr(mvbb_ros.ros.node, 'process_cloud', slow_first)
+    graph = Graph()
+    try:
+        graph.node.take_policy.every_cloud = True  # as after a probe on a slow transport
+        publisher = graph.publisher()
+        assert graph.spin_until(lambda: publisher.get_subscription_count() > 0)
+        publisher.publish(_cloud(1))
+        assert graph.spin_until(started.is_set)
+        received = graph.node.diagnostic_counts
+        # Each taken during the frame as it comes: the worker pushes out the one before.
+        for sec in (2, 3, 4):
+            publisher.publish(_cloud(sec))
+            assert graph.spin_until(lambda n=sec: received()['clouds_received'] == n)
+        assert graph.node.frames.skipped == 2
+        assert graph.node.cloud_input.skipped == 0  # no gap: none waited untaken
+        release.set()
+        assert graph.spin_until(lambda: graph.answer(4) is not None, timeout_s=30.0)
+        assert graph.spin_until(graph.node.frames.idle, timeout_s=30.0)
+        assert stamps == [1, 4]
+        assert graph.answer(2) is None and graph.answer(3) is None
+        assert received()['clouds_skipped_busy'] == 2
+    finally:
+        release.set()
+        graph.close()
+
+
+@pytest.mark.ros
 def test_the_frames_wait_as_deep_as_the_input_keeps():
     """input_depth is the frames' queue too: a bag played faster than the node loses nothing."""
     graph = Graph()
