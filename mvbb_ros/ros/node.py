@@ -223,9 +223,9 @@ class DecomposerNode(Node):
         warm_up_logged(self.get_logger().info)
         # Frames run on their own thread: services and diagnostics answer during a frame. As
         # many clouds wait for it as the input keeps (input_depth); the input takes a cloud only
-        # when the worker has room, or every cloud as it arrives where the transport delivers
-        # clouds late when they wait (the take policy's probes). After a frame the worker takes
-        # the waiting cloud itself, then wakes the executor, which waits for the next.
+        # when the worker has room, or every cloud as it arrives where that answers more clouds
+        # (the take policy's probes). After a frame the worker takes the waiting cloud itself,
+        # then wakes the executor, which waits for the next.
         self._take_policy = TakePolicy(enabled=self._settings.node.input_depth == 1)
         self._worker = FrameWorker(
             self._run_frame,
