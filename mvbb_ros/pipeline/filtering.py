@@ -55,7 +55,7 @@ Why the second pass is fast:
   read, no hashing), else in an open-addressing hash table keyed by the three voxel indices (a
   lidar sweep over hundreds of metres). On a depth frame's runs the two cost the same; on
   points in no particular order (a resampled or merged cloud: a lookup at almost every point)
-  the dense grid takes about a quarter off the pass (``docs/performance.md``). Slots (and the
+  the dense grid takes about a fifth off the pass (``docs/performance.md``). Slots (and the
   hash table) start at 4096 and double, so memory is linear in the number of occupied voxels
   or, for the dense grid, bounded by the number of points.
 
