@@ -74,9 +74,6 @@ class Figures:
     #: The node's CPU time while streaming by role (:func:`thread_cpu_s`), as shares of the
     #: streaming time.
     cpu: dict[str, float] | None = None
-    #: The node's ``input_takes`` in each of its diagnostics: how its input took clouds (when
-    #: the frame worker is free, or every cloud as it arrives) and its last probe's rates.
-    takes: tuple[str, ...] = ()
 
     @property
     def answered(self) -> int:
@@ -209,17 +206,12 @@ def stream(
             latencies.append(time.perf_counter() - sent.pop(key))
 
     levels: list[int] = []
-    takes: list[str] = []
 
     def on_diagnostics(message: DiagnosticArray) -> None:
         for status in message.status:
             values = {item.key: item.value for item in status.values}
-            if not status.name.startswith('decomposer'):
-                continue
-            if 'frame_budget_level' in values:
+            if status.name.startswith('decomposer') and 'frame_budget_level' in values:
                 levels.append(int(values['frame_budget_level']))
-            if 'input_takes' in values:
-                takes.append(values['input_takes'])
 
     reliable = QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
@@ -291,14 +283,7 @@ def stream(
         client.destroy_subscription(diagnostics)
         client.destroy_publisher(publisher)
     return Figures(
-        elapsed,
-        count,
-        np.array(latencies) * 1e3,
-        memory,
-        exit_code,
-        tuple(levels),
-        cpu,
-        tuple(takes),
+        elapsed, count, np.array(latencies) * 1e3, memory, exit_code, tuple(levels), cpu
     )
 
 
@@ -330,19 +315,6 @@ def report(name: str, figures: Figures) -> None:
         seconds = np.bincount(figures.budget_levels)
         spread = ', '.join(f'{level}: {int(n)}' for level, n in enumerate(seconds) if n)
         print(f'  frame_time_budget level, seconds at each (from /diagnostics): {spread}')
-    if figures.takes:
-        every = sum(take.startswith('every cloud') for take in figures.takes)
-        print(
-            f'  input took every cloud as it arrived in {every} of {len(figures.takes)} '
-            f'diagnostics; last: {figures.takes[-1]}'
-        )
-        probes = []  # each probe's rates once, in order
-        for take in figures.takes:
-            _, found, rates = take.partition('last probe: ')
-            if found and (not probes or probes[-1] != rates):
-                probes.append(rates)
-        if probes:
-            print('  probes (clouds/s): ' + '; '.join(rate.rstrip(')') for rate in probes))
     print(f'  exit code on SIGINT: {figures.exit_code}')
 
 

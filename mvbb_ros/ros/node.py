@@ -53,7 +53,6 @@ from mvbb_ros.pipeline.specs import SettingSpec, SPEC_BY_NAME, SPECS
 from mvbb_ros.ros.diagnostics import OverloadWatch, ReceptionLog
 from mvbb_ros.ros.input import CloudInput
 from mvbb_ros.ros.messages import cleared_tree, diagnostic_status, output_messages, OUTPUT_TYPES
-from mvbb_ros.ros.take_policy import TakePolicy
 from mvbb_ros.ros.worker import FrameWorker
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -223,10 +222,8 @@ class DecomposerNode(Node):
         warm_up_logged(self.get_logger().info)
         # Frames run on their own thread: services and diagnostics answer during a frame. As
         # many clouds wait for it as the input keeps (input_depth); the input takes a cloud only
-        # when the worker has room, or every cloud as it arrives where that answers more clouds
-        # (the take policy's probes). After a frame the worker takes the waiting cloud itself,
+        # when the worker has room. After a frame the worker takes the waiting cloud itself,
         # then wakes the executor, which waits for the next.
-        self._take_policy = TakePolicy(enabled=self._settings.node.input_depth == 1)
         self._worker = FrameWorker(
             self._run_frame,
             name='decomposer frames',
@@ -239,7 +236,7 @@ class DecomposerNode(Node):
             self._on_cloud,
             self._settings.node.input_reliability,
             self._settings.node.input_depth,
-            ready=self._may_take,
+            ready=self._worker.has_room,
         )
         self._overload = OverloadWatch()
         # The wall clock: diagnostics go on while a bag is paused under use_sim_time.
@@ -338,7 +335,6 @@ class DecomposerNode(Node):
         ):
             self._input.configure(after.input_reliability, after.input_depth)
             self._worker.set_depth(after.input_depth)
-            self._take_policy.enabled = after.input_depth == 1
         if before.publish_tree and not after.publish_tree:
             header = self._last_cloud.header if self._last_cloud is not None else Header()
             self._publishers_by_suffix['tree'].publish(cleared_tree(header))
@@ -364,10 +360,6 @@ class DecomposerNode(Node):
         self._last_cloud = cloud
         self._worker.submit(cloud)
 
-    def _may_take(self) -> bool:
-        """Tell whether the input may take a cloud now (the executor's gate)."""
-        return self._take_policy.every_cloud or self._worker.has_room()
-
     def _take_waiting(self) -> None:
         """Take the cloud that waits in the input, if any (on the worker, after a frame)."""
         try:
@@ -386,7 +378,6 @@ class DecomposerNode(Node):
         """Process a new cloud, or (None) the last cloud again; on the worker thread."""
         if cloud is not None:
             self._process(cloud, reprocess=False)
-            self._take_policy.frame_done()  # the worker wakes the executor after the frame
         elif self._last_cloud is not None:
             self._stats['clouds_reprocessed'] += 1
             self._process(self._last_cloud, reprocess=True)
@@ -398,11 +389,6 @@ class DecomposerNode(Node):
             'clouds_skipped_busy': self._worker.skipped + self._input.skipped,
             'parameter_changes_merged': self._worker.merged,
         }
-
-    @property
-    def take_policy(self) -> TakePolicy:
-        """Return how the input takes clouds: when the frame worker is free, or every cloud."""
-        return self._take_policy
 
     @property
     def frames(self) -> FrameWorker:
@@ -494,7 +480,6 @@ class DecomposerNode(Node):
             if cloud_input.lost is None
             else cloud_input.lost,
             'incompatible_qos_events': cloud_input.incompatible,
-            'input_takes': self._take_policy.description(),
         }
         problems = []
         stale_after = self._settings.node.stale_after

@@ -75,22 +75,6 @@ def test_the_report_says_how_long_the_node_ran_at_each_budget_level(soak, capsys
     assert 'budget level' not in capsys.readouterr().out
 
 
-def test_the_report_says_how_the_input_took_clouds(soak, capsys):
-    memory = [(0.0, 100.0 * MIB), (60.0, 100.0 * MIB)]
-    takes = (
-        'when the frame worker is free (no probe yet)',
-        'every cloud as it arrives (probing)',
-        'every cloud as it arrives (last probe: 21.0 clouds/s taking every cloud, 15.0 when free)',
-    )
-    figures = soak.Figures(60.0, 1800, np.array([20.0]), memory, 0, takes=takes)
-    soak.report('decomposer', figures)
-    out = capsys.readouterr().out
-    assert 'input took every cloud as it arrived in 2 of 3 diagnostics; last: every cloud' in out
-    assert 'probes (clouds/s): 21.0 clouds/s taking every cloud, 15.0 when free\n' in out
-    soak.report('decomposer', _figures(soak, memory))
-    assert 'input took' not in capsys.readouterr().out
-
-
 CHILD = r"""
 import ctypes, threading, time
 
