@@ -66,12 +66,22 @@ anything is allocated.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+import threading
 from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min
 from mvbb_ros.common.workers import Workers
-from mvbb_ros.pipeline.outliers import remove_statistical_outliers
+from mvbb_ros.pipeline.outliers import (
+    check_std_ratio,
+    checked_points,
+    kept_points,
+    MIN_SPLIT_POINTS,
+    NeighbourQueries,
+    remove_statistical_outliers,
+    split_queries,
+)
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -754,16 +764,102 @@ def outlier_step(
     pool: Workers | None = None,
 ) -> tuple[NDArray[np.float64], FilterCounts]:
     """Return :func:`filter_points`' result from its :func:`voxel_step`: the outliers removed."""
-    pts = voxels.points
-    count_downsampled = len(pts)
-    if outlier_neighbors > 0 and count_downsampled > outlier_neighbors:
+    kept = None
+    if outlier_neighbors > 0 and len(voxels.points) > outlier_neighbors:
         kept = remove_statistical_outliers(
-            pts, int(outlier_neighbors), float(outlier_std_ratio), pool
+            voxels.points, int(outlier_neighbors), float(outlier_std_ratio), pool
         )
-        pts = pts[kept]
+    return _filtered(voxels, kept)
+
+
+def _filtered(
+    voxels: Voxels, kept: NDArray[np.intp] | None
+) -> tuple[NDArray[np.float64], FilterCounts]:
+    """Return the `kept` voxel points (all for None) as float64, and the counts."""
+    pts = voxels.points if kept is None else voxels.points[kept]
     filtered = np.ascontiguousarray(pts, dtype=np.float64)
-    counts = FilterCounts(voxels.finite, voxels.cropped, count_downsampled, len(filtered))
+    counts = FilterCounts(voxels.finite, voxels.cropped, len(voxels.points), len(filtered))
     return filtered, counts
+
+
+class BackgroundFilter:
+    """
+    :func:`filter_points` begun on a helper of a pool while the calling thread does other work.
+
+    The helper makes the voxel grid and the outlier removal's kd-tree, then takes ranges of the
+    neighbour queries (:class:`~mvbb_ros.pipeline.outliers.NeighbourQueries`); :meth:`result`
+    has the calling thread take the ranges left, so the two share them, and returns what
+    :func:`filter_points` returns with the same arguments, bit for bit. :meth:`cancel` stops
+    the work when the points are not wanted (a table-top frame filters what stands on its
+    table instead). The arguments are :func:`filter_points`' (keywords only).
+    """
+
+    def __init__(
+        self,
+        pool: Workers,
+        points: ArrayLike,
+        *,
+        voxel_size: float = 0.0,
+        outlier_neighbors: int = 0,
+        outlier_std_ratio: float = 2.0,
+        crop_min: ArrayLike | None = None,
+        crop_max: ArrayLike | None = None,
+        bounds: ArrayLike | None = None,
+        finite: int | None = None,
+    ) -> None:
+        if outlier_neighbors > 0:
+            check_std_ratio(outlier_std_ratio)  # the caller's error, raised on its own thread
+        self._neighbors = int(outlier_neighbors)
+        self._std_ratio = float(outlier_std_ratio)
+        self._pool = pool
+        self._ready = threading.Event()
+        self._queries: NeighbourQueries | None = None
+        self._cancelled = False
+
+        def voxels() -> Voxels:
+            return voxel_step(
+                points,
+                voxel_size=voxel_size,
+                crop_min=crop_min,
+                crop_max=crop_max,
+                bounds=bounds,
+                finite=finite,
+            )
+
+        self._task = pool.submit(lambda: self._run(voxels))
+
+    def _run(self, make_voxels: Callable[[], Voxels]) -> Voxels:
+        try:
+            voxels = make_voxels()
+            count = len(voxels.points)
+            if 0 < self._neighbors < count and count >= MIN_SPLIT_POINTS and not self._cancelled:
+                array = checked_points(voxels.points, self._neighbors)
+                self._queries = split_queries(array, self._neighbors, self._pool)
+        finally:
+            self._ready.set()  # also after an error: result() raises it
+        if self._queries is not None:
+            if self._cancelled:
+                self._queries.cancel()
+            self._queries.take()
+        return voxels
+
+    def result(self) -> tuple[NDArray[np.float64], FilterCounts]:
+        """Return :func:`filter_points`' answer, taking the query ranges no helper has taken."""
+        self._task.run_if_waiting()  # no helper started it: all of it on this thread
+        self._ready.wait()
+        if self._queries is not None:
+            self._queries.take()
+        voxels = self._task.result()  # the helper's last range done (or its error raised)
+        if self._queries is None:
+            return outlier_step(voxels, self._neighbors, self._std_ratio)
+        return _filtered(voxels, kept_points(self._queries.distances, self._std_ratio))
+
+    def cancel(self) -> None:
+        """Drop the work not yet done: its points are not wanted."""
+        self._cancelled = True
+        self._task.cancel()
+        if self._queries is not None:
+            self._queries.cancel()
 
 
 def warm_up() -> None:

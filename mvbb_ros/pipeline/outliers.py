@@ -40,9 +40,10 @@ insertion, collecting candidates within the bound and sorting them by rank count
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
-from mvbb_ros.common.workers import split_rows, Workers, workers
+from mvbb_ros.common.workers import chunks, Workers, workers
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -55,6 +56,11 @@ LEAF_SIZE = 12
 _MAX_DEPTH = 40
 #: Fewer points than this are queried on one thread (a split would cost more than it saves).
 MIN_SPLIT_POINTS = 2000
+#: A split cloud's queries go in ranges of about this many points (at least
+#: :data:`MIN_RANGES_PER_WORKER` per thread), taken by whichever thread is free: a range's first
+#: query has no previous one to bound it.
+RANGE_POINTS = 256
+MIN_RANGES_PER_WORKER = 4
 
 
 @njit
@@ -330,25 +336,57 @@ def _fill_range(
     _fill(tree_points, order, lower, upper, depth, starts, ends, k, begin, end, result)
 
 
+class NeighbourQueries:
+    """
+    The mean neighbour distances of one cloud, in ranges of tree order any thread may take.
+
+    :meth:`take` computes ranges that no thread has taken yet until none is left, so the threads
+    that call it share the work whenever each comes free (a helper may start before the
+    caller). The distances are :func:`_mean_distances`' whoever computed which range: each
+    point's answer is its own k nearest. They are complete once every :meth:`take` has returned.
+    """
+
+    def __init__(self, points: NDArray[np.float64], neighbors: int, ranges: int) -> None:
+        count = points.shape[0]
+        self.distances = np.zeros(count, dtype=np.float64)
+        self._tree = _tree(points) if count else None
+        self._k = min(int(neighbors), count)
+        self._ranges = chunks(count, ranges) if count else []
+        self._next = itertools.count()  # next() on it is atomic: each range is taken once
+        self._cancelled = False
+
+    def take(self) -> None:
+        """Compute the ranges nobody has taken, until none is left or :meth:`cancel`."""
+        tree = self._tree
+        while tree is not None and not self._cancelled:
+            index = next(self._next)
+            if index >= len(self._ranges):
+                return
+            part = self._ranges[index]
+            tree_points, order, lower, upper, depth, starts, ends = tree
+            _fill_range(
+                tree_points, order, lower, upper, depth, starts, ends, self._k, part.start,
+                part.stop, self.distances,
+            )  # fmt: skip
+
+    def cancel(self) -> None:
+        """Stop taking ranges (the distances are not wanted any more)."""
+        self._cancelled = True
+
+
+def split_queries(points: NDArray[np.float64], neighbors: int, pool: Workers) -> NeighbourQueries:
+    """Return the :class:`NeighbourQueries` of `points` in ranges for `pool`'s threads."""
+    ranges = max(pool.count * MIN_RANGES_PER_WORKER, len(points) // RANGE_POINTS)
+    return NeighbourQueries(points, neighbors, ranges)
+
+
 def _mean_distances_split(
     points: NDArray[np.float64], neighbors: int, pool: Workers
 ) -> NDArray[np.float64]:
-    """Return :func:`_mean_distances`, the queries split in ranges of tree order over `pool`."""
-    count = points.shape[0]
-    result = np.zeros(count, dtype=np.float64)
-    if count == 0:
-        return result
-    tree_points, order, lower, upper, depth, starts, ends = _tree(points)
-    k = min(neighbors, count)
-
-    def fill(part: slice) -> None:  # each range writes its own points' entries of `result`
-        _fill_range(
-            tree_points, order, lower, upper, depth, starts, ends, k, part.start, part.stop,
-            result,
-        )  # fmt: skip
-
-    pool.spread(fill, split_rows(pool, count))
-    return result
+    """Return :func:`_mean_distances`, the queries shared by the threads of `pool`."""
+    queries = split_queries(points, neighbors, pool)
+    pool.spread(lambda _: queries.take(), range(pool.count))
+    return queries.distances
 
 
 @njit(types.int64[::1](types.float64[::1], types.float64), cache=True, nogil=True)
@@ -382,6 +420,26 @@ def _readonly_points(points: ArrayLike) -> NDArray[np.float64]:
     return array
 
 
+def checked_points(points: ArrayLike, nb_neighbors: int) -> NDArray[np.float64]:
+    """
+    Return `points` as the read-only float64 (N, 3) array the queries take, or raise.
+
+    :raises ValueError: for ``nb_neighbors < 1`` or non-finite points.
+    """
+    if int(nb_neighbors) < 1:
+        raise ValueError(f'nb_neighbors must be >= 1, got {nb_neighbors!r}')
+    array = _readonly_points(points)
+    if not np.isfinite(array).all():
+        raise ValueError('points must be finite')
+    return array
+
+
+def check_std_ratio(std_ratio: float) -> None:
+    """Raise ValueError unless `std_ratio` is finite and > 0 (Open3D refuses the rest)."""
+    if not (np.isfinite(std_ratio) and std_ratio > 0.0):
+        raise ValueError(f'std_ratio must be finite and > 0, got {std_ratio!r}')
+
+
 def mean_neighbor_distances(
     points: ArrayLike, nb_neighbors: int, pool: Workers | None = None
 ) -> NDArray[np.float64]:
@@ -395,11 +453,7 @@ def mean_neighbor_distances(
     :return: the mean distances ``(N,)``, float64.
     :raises ValueError: for ``nb_neighbors < 1`` or non-finite points.
     """
-    if int(nb_neighbors) < 1:
-        raise ValueError(f'nb_neighbors must be >= 1, got {nb_neighbors!r}')
-    array = _readonly_points(points)
-    if not np.isfinite(array).all():
-        raise ValueError('points must be finite')
+    array = checked_points(points, nb_neighbors)
     if pool is not None and pool.parallel and len(array) >= MIN_SPLIT_POINTS:
         return _mean_distances_split(array, int(nb_neighbors), pool)
     return _mean_distances(array, int(nb_neighbors))
@@ -420,12 +474,20 @@ def remove_statistical_outliers(
     :raises ValueError: for ``nb_neighbors < 1``, ``std_ratio <= 0`` (Open3D refuses both) or
         non-finite points.
     """
-    if not (np.isfinite(std_ratio) and std_ratio > 0.0):
-        raise ValueError(f'std_ratio must be finite and > 0, got {std_ratio!r}')
-    distances = mean_neighbor_distances(points, nb_neighbors, pool)
-    if len(distances) < 2:
+    check_std_ratio(std_ratio)
+    return kept_points(mean_neighbor_distances(points, nb_neighbors, pool), std_ratio)
+
+
+def kept_points(mean_distances: NDArray[np.float64], std_ratio: float) -> NDArray[np.intp]:
+    """
+    Return the indices Open3D keeps given every point's mean neighbour distance.
+
+    :param mean_distances: :func:`mean_neighbor_distances` of the cloud.
+    :param std_ratio: as for :func:`remove_statistical_outliers` (checked there).
+    """
+    if len(mean_distances) < 2:
         return np.empty(0, dtype=np.intp)
-    return _kept(distances, float(std_ratio)).astype(np.intp, copy=False)
+    return _kept(mean_distances, float(std_ratio)).astype(np.intp, copy=False)
 
 
 def warm_up() -> None:

@@ -31,15 +31,13 @@ from mvbb_ros.pipeline.budget import FrameBudget
 from mvbb_ros.pipeline.decode import CloudFormatError, decode_points, Decoded
 from mvbb_ros.pipeline.density import finer_object_points
 from mvbb_ros.pipeline.filtering import (
+    BackgroundFilter,
     crop_box,
     crop_points,
     filter_points,
     FilterCounts,
     finite_bounds,
-    outlier_step,
     voxel_down_sample,
-    voxel_step,
-    Voxels,
 )
 from mvbb_ros.pipeline.result import ObjectResult, PipelineResult
 from mvbb_ros.pipeline.scene import (
@@ -281,19 +279,13 @@ def process_points(
         # only, not on the whole room. Without a table the cloud is filtered as without the
         # scene stage, from the start.
         start = time.perf_counter()
-        unfiltered: Task[Voxels] | None = None
+        unfiltered: BackgroundFilter | None = None
         if pool is not None:
-            # A cloud without a table (a segmented object) is filtered whole: its voxel grid
-            # starts now, on a helper, while this thread looks for the table; a table drops it.
-            unfiltered = pool.submit(
-                lambda: voxel_step(
-                    array,
-                    voxel_size=filtering.voxel_size,
-                    crop_min=filtering.crop_min,
-                    crop_max=filtering.crop_max,
-                    bounds=bounds,
-                    finite=finite,
-                )
+            # A cloud without a table (a segmented object) is filtered whole: its voxel grid and
+            # outlier queries start now, on a helper, while this thread looks for the table
+            # (then shares the queries left); a table drops them.
+            unfiltered = BackgroundFilter(
+                pool, array, bounds=bounds, finite=finite, **asdict(filtering)
             )
         scoped = array
         if bounds is None:  # not cropped by the decoder
@@ -312,12 +304,7 @@ def process_points(
         timings['scene'] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
         if scene.support is None and unfiltered is not None:
-            filtered, counts = outlier_step(
-                unfiltered.result(),
-                filtering.outlier_neighbors,
-                filtering.outlier_std_ratio,
-                pool,
-            )
+            filtered, counts = unfiltered.result()
         elif scene.support is None:
             filtered, counts = filter_points(
                 array, bounds=bounds, finite=finite, pool=pool, **asdict(filtering)

@@ -194,3 +194,42 @@ def test_the_queries_split_over_workers_give_the_same_distances(
         assert split.tobytes() == alone.tobytes()
     kept = remove_statistical_outliers(points, neighbors, 1.0)
     assert np.array_equal(kept, remove_statistical_outliers(points, neighbors, 1.0, workers(2)))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    count=st.integers(1, 3000),
+    neighbors=st.integers(1, 30),
+    ranges=st.integers(1, 40),
+    threads=st.integers(1, 4),
+)
+def test_query_ranges_taken_by_any_threads_give_the_same_distances(
+    seed, count, neighbors, ranges, threads
+):
+    import threading
+
+    from mvbb_ros.pipeline.outliers import NeighbourQueries
+
+    rng = np.random.default_rng(seed)
+    points = rng.normal(0.0, 1.0, (count, 3)) * rng.uniform(0.01, 3.0, 3)
+    points[rng.integers(0, count, count // 4)] = points[-1]  # ties in the k-th distance
+    alone = mean_neighbor_distances(points, neighbors)
+    queries = NeighbourQueries(np.ascontiguousarray(points), neighbors, ranges)
+    takers = [threading.Thread(target=queries.take) for _ in range(threads - 1)]
+    for taker in takers:
+        taker.start()
+    queries.take()
+    for taker in takers:
+        taker.join()
+    assert queries.distances.tobytes() == alone.tobytes()
+
+
+def test_cancelled_queries_stop_taking_ranges():
+    from mvbb_ros.pipeline.outliers import NeighbourQueries
+
+    points = np.random.default_rng(1).normal(size=(4000, 3))
+    queries = NeighbourQueries(points, 20, 16)
+    queries.cancel()
+    queries.take()
+    assert not queries.distances.any(), 'no range computed after cancel'
