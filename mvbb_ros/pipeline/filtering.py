@@ -82,6 +82,7 @@ from mvbb_ros.pipeline.outliers import (
     remove_statistical_outliers,
     split_queries,
 )
+from mvbb_ros.pipeline.stage_settings import FilterSettings
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -789,28 +790,24 @@ class BackgroundFilter:
     The helper makes the voxel grid and the outlier removal's kd-tree, then takes ranges of the
     neighbour queries (:class:`~mvbb_ros.pipeline.outliers.NeighbourQueries`); :meth:`result`
     has the calling thread take the ranges left, so the two share them, and returns what
-    :func:`filter_points` returns with the same arguments, bit for bit. :meth:`cancel` stops
-    the work when the points are not wanted (a table-top frame filters what stands on its
-    table instead). The arguments are :func:`filter_points`' (keywords only).
+    :func:`filter_points` returns with the same settings, bounds and count, bit for bit.
+    :meth:`cancel` stops the work when the points are not wanted (a table-top frame filters what
+    stands on its table instead).
     """
 
     def __init__(
         self,
         pool: Workers,
         points: ArrayLike,
+        settings: FilterSettings,
         *,
-        voxel_size: float = 0.0,
-        outlier_neighbors: int = 0,
-        outlier_std_ratio: float = 2.0,
-        crop_min: ArrayLike | None = None,
-        crop_max: ArrayLike | None = None,
         bounds: ArrayLike | None = None,
         finite: int | None = None,
     ) -> None:
-        if outlier_neighbors > 0:
-            check_std_ratio(outlier_std_ratio)  # the caller's error, raised on its own thread
-        self._neighbors = int(outlier_neighbors)
-        self._std_ratio = float(outlier_std_ratio)
+        if settings.outlier_neighbors > 0:
+            check_std_ratio(settings.outlier_std_ratio)  # the caller's error, on its own thread
+        self._neighbors = int(settings.outlier_neighbors)
+        self._std_ratio = float(settings.outlier_std_ratio)
         self._pool = pool
         self._ready = threading.Event()
         self._queries: NeighbourQueries | None = None
@@ -819,9 +816,9 @@ class BackgroundFilter:
         def voxels() -> Voxels:
             return voxel_step(
                 points,
-                voxel_size=voxel_size,
-                crop_min=crop_min,
-                crop_max=crop_max,
+                voxel_size=settings.voxel_size,
+                crop_min=settings.crop_min,
+                crop_max=settings.crop_max,
                 bounds=bounds,
                 finite=finite,
             )

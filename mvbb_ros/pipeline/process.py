@@ -284,9 +284,7 @@ def process_points(
             # A cloud without a table (a segmented object) is filtered whole: its voxel grid and
             # outlier queries start now, on a helper, while this thread looks for the table
             # (then shares the queries left); a table drops them.
-            unfiltered = BackgroundFilter(
-                pool, array, bounds=bounds, finite=finite, **asdict(filtering)
-            )
+            unfiltered = BackgroundFilter(pool, array, filtering, bounds=bounds, finite=finite)
         scoped = array
         if bounds is None:  # not cropped by the decoder
             scoped = crop_points(array, filtering.crop_min, filtering.crop_max)

@@ -368,6 +368,7 @@ def test_a_background_filter_gives_filter_points_answer(count_workers, size, nei
     """Voxels and outlier queries begun on a helper, the rest taken here: the same points."""
     from mvbb_ros.common.workers import workers
     from mvbb_ros.pipeline.filtering import BackgroundFilter
+    from mvbb_ros.pipeline.stage_settings import FilterSettings
 
     rng = np.random.default_rng(count_workers)
     points = np.concatenate([object_points(40_000), rng.uniform(-0.5, 0.5, (60, 3)) + 0.7])
@@ -375,7 +376,7 @@ def test_a_background_filter_gives_filter_points_answer(count_workers, size, nei
     if crop:
         options.update(crop_min=(0.02, -1.0, -1.0), crop_max=(0.3, 1.0, 1.0))
     expected, expected_counts = filter_points(points, **options)
-    pending = BackgroundFilter(workers(count_workers), points, **options)
+    pending = BackgroundFilter(workers(count_workers), points, FilterSettings(**options))
     time.sleep(0.002 * count_workers)  # the helper is at the voxels or the queries, or done
     filtered, counts = pending.result()
     assert filtered.tobytes() == expected.tobytes() and filtered.dtype == np.float64
@@ -386,30 +387,36 @@ def test_a_background_filter_gives_filter_points_answer(count_workers, size, nei
 def test_a_cancelled_background_filter_leaves_its_pool_working():
     from mvbb_ros.common.workers import workers
     from mvbb_ros.pipeline.filtering import BackgroundFilter
+    from mvbb_ros.pipeline.stage_settings import FilterSettings
 
     points = object_points(40_000)
     pool = workers(2)
+    settings = FilterSettings(voxel_size=0.002, outlier_neighbors=20)
     for pause in (0.0, 0.001, 0.003, 0.01):
-        pending = BackgroundFilter(pool, points, voxel_size=0.002, outlier_neighbors=20)
+        pending = BackgroundFilter(pool, points, settings)
         time.sleep(pause)
         pending.cancel()
     later = pool.submit(lambda: 42)
     assert later.result() == 42
     expected = filter_points(points, voxel_size=0.002, outlier_neighbors=20)
-    again = BackgroundFilter(pool, points, voxel_size=0.002, outlier_neighbors=20).result()
+    again = BackgroundFilter(pool, points, settings).result()
     assert again[0].tobytes() == expected[0].tobytes()
 
 
 def test_a_background_filter_raises_the_errors_of_filter_points():
     from mvbb_ros.common.workers import workers
     from mvbb_ros.pipeline.filtering import BackgroundFilter
+    from mvbb_ros.pipeline.stage_settings import FilterSettings
 
     pool = workers(2)
     with pytest.raises(ValueError, match='std_ratio must be finite and > 0'):
-        BackgroundFilter(pool, object_points(100), voxel_size=0.01, outlier_neighbors=5,
-                         outlier_std_ratio=0.0)  # fmt: skip
+        BackgroundFilter(
+            pool,
+            object_points(100),
+            FilterSettings(voxel_size=0.01, outlier_neighbors=5, outlier_std_ratio=0.0),
+        )
     far = np.array([[0.0, 0.0, 0.0], [1e38, 1e38, 1e38]])
-    pending = BackgroundFilter(pool, far, voxel_size=0.005, outlier_neighbors=5)
+    pending = BackgroundFilter(pool, far, FilterSettings(voxel_size=0.005, outlier_neighbors=5))
     with pytest.raises(ValueError, match='too small for a cloud spanning'):
         pending.result()
 
