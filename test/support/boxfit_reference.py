@@ -28,7 +28,7 @@ import math
 from pathlib import Path
 
 from mvbb_ros.geometry.boxfit.hull import convex_hull
-from mvbb_ros.geometry.boxfit.search import _edge_pair_axes, copy_frame
+from mvbb_ros.geometry.boxfit.search import copy_frame, edge_pair_axes, longest_edges
 from mvbb_ros.geometry.boxfit.turn import new_work, rotate_about
 import numba as nb
 import numpy as np
@@ -149,7 +149,7 @@ def reference_box(points: np.ndarray) -> ReferenceBox:
         [
             np.eye(3),
             _fibonacci_half_sphere(DIRECTIONS),
-            _edge_pair_axes(vertices, hull.edges, PAIR_EDGES),
+            edge_pair_axes(vertices, hull.edges, longest_edges(vertices, hull.edges, PAIR_EDGES)),
         ]
     )
     _, frame = _reference_search(

@@ -88,6 +88,12 @@ CANDIDATE_AXES = 48
 #: 1.0215 x the reference) at no measurable cost, since the polish halves the starts every round
 #: (``CHANGELOG.md``).
 STARTS = 16
+#: Hull edges of largest length times turning angle whose pairs are candidate axes too
+#: (``sharp_edges``; :func:`~mvbb_ros.geometry.boxfit.search.sharpest_edges`), a quarter of
+#: ``candidates`` of them kept: a minimal box's faces can be flush with edges shorter than the
+#: longest where the hull turns sharply. Without them, 4 of 15,000 varied clouds missed the
+#: best box by 1.0104-1.0148 x (``CHANGELOG.md``).
+SHARP_EDGES = 18
 #: First tilt of the final walk of the box's axis (radians), halved ``walk_steps`` times.
 WALK_STEP = 0.04
 
@@ -106,6 +112,7 @@ def fit_kernel(
     max_rounds: int,
     exhaustive: int,
     pair_edges: int,
+    sharp_edges: int,
     coreset_cells: int,
     coreset_min: int,
     hull_tolerance: float,
@@ -263,6 +270,7 @@ def fit_kernel(
                 seed,
                 candidates,
                 pair_edges,
+                sharp_edges,
                 sample_size,
                 exhaustive,
                 starts,
@@ -293,6 +301,7 @@ def fit_kernel(
                 seed,
                 candidates,
                 pair_edges,
+                sharp_edges,
                 sample_size,
                 exhaustive,
                 starts,
@@ -375,6 +384,7 @@ def fit_box(
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
+    sharp_edges: int = SHARP_EDGES,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
     walk_steps: int = 6,
@@ -404,6 +414,8 @@ def fit_box(
     :param exhaustive: hulls with at most this many facets try every distinct facet normal
         without ranking.
     :param pair_edges: longest hull edges whose pairs give candidate axes.
+    :param sharp_edges: hull edges of largest length times turning angle whose pairs give
+        candidate axes too (a quarter of `candidates` of them kept; 0 turns them off).
     :param coreset_cells: columns per side of the grid coreset for large clouds (0: never).
     :param coreset_min: clouds of at least this many points are hulled on their grid coreset;
         smaller ones on all points. A coreset's frame is re-checked against every point: points
@@ -431,6 +443,7 @@ def fit_box(
         max_rounds=max_rounds,
         exhaustive=exhaustive,
         pair_edges=pair_edges,
+        sharp_edges=sharp_edges,
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
         walk_steps=walk_steps,
@@ -451,6 +464,7 @@ class _Knobs(NamedTuple):
     max_rounds: int
     exhaustive: int
     pair_edges: int
+    sharp_edges: int
     coreset_cells: int
     coreset_min: int
     walk_steps: int
@@ -468,6 +482,7 @@ def _knobs(
     max_rounds: int,
     exhaustive: int,
     pair_edges: int,
+    sharp_edges: int,
     coreset_cells: int,
     coreset_min: int,
     walk_steps: int,
@@ -484,6 +499,7 @@ def _knobs(
         _check_knob('max_rounds', max_rounds, 0),
         _check_knob('exhaustive', exhaustive, 0),
         _check_knob('pair_edges', pair_edges, 0),
+        _check_knob('sharp_edges', sharp_edges, 0),
         _check_knob('coreset_cells', coreset_cells, 0),
         _check_knob('coreset_min', coreset_min, 0),
         _check_knob('walk_steps', walk_steps, 0),
@@ -510,6 +526,7 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
         knobs.max_rounds,
         knobs.exhaustive,
         knobs.pair_edges,
+        knobs.sharp_edges,
         knobs.coreset_cells,
         knobs.coreset_min,
         hull_module.HULL_TOLERANCE,
@@ -523,16 +540,18 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
 #: The default knobs (from :func:`fit_box`'s signature).
 _DEFAULT_KNOBS = _knobs(**(fit_box.__kwdefaults__ or {}))
 #: The knobs of a decomposition's light part fits (``part_search: light``): 6 starts, copies of
-#: one basin's box included, fewer candidate axes and edge pairs, a short walk of the first axis
-#: only, and parts of 1,000 points or more hulled on a 12 x 12 grid coreset (re-checked against
-#: every point, :func:`add_leaks`). Lighter than the default search: a decomposition fits tens
-#: of parts a cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`. It misses the best basin
-#: on about one part in 200 (up to 1.05 x an exhaustive reference; ``docs/performance.md``).
+#: one basin's box included, fewer candidate axes and edge pairs (no sharp ones), a short walk
+#: of the first axis only, and parts of 1,000 points or more hulled on a 12 x 12 grid coreset
+#: (re-checked against every point, :func:`add_leaks`). Lighter than the default search: a
+#: decomposition fits tens of parts a cloud. Smaller parts search as :data:`SMALL_PART_SEARCH`.
+#: It misses the best basin on about one part in 200 (up to 1.07 x an exhaustive reference;
+#: ``docs/performance.md``).
 PART_SEARCH: dict[str, int] = {
     'candidates': 16,
     'starts': 6,
     'grid_size': 0,
     'pair_edges': 6,
+    'sharp_edges': 0,
     'coreset_cells': 12,
     'coreset_min': 1000,
     'walk_steps': 2,
@@ -590,6 +609,7 @@ def minimum_bounding_box(
     max_rounds: int = 3,
     exhaustive: int = 32,
     pair_edges: int = 12,
+    sharp_edges: int = SHARP_EDGES,
     coreset_cells: int = 32,
     coreset_min: int = CORESET_MIN_POINTS,
     walk_steps: int = 6,
@@ -616,6 +636,7 @@ def minimum_bounding_box(
     :param max_rounds: see :func:`fit_box`.
     :param exhaustive: see :func:`fit_box`.
     :param pair_edges: see :func:`fit_box`.
+    :param sharp_edges: see :func:`fit_box`.
     :param coreset_cells: see :func:`fit_box`.
     :param coreset_min: see :func:`fit_box`.
     :param walk_steps: see :func:`fit_box`.
@@ -634,6 +655,7 @@ def minimum_bounding_box(
         max_rounds=max_rounds,
         exhaustive=exhaustive,
         pair_edges=pair_edges,
+        sharp_edges=sharp_edges,
         coreset_cells=coreset_cells,
         coreset_min=coreset_min,
         walk_steps=walk_steps,

@@ -10,7 +10,8 @@ hull.
   (:func:`mvbb_ros.geometry.boxfit.turn.rotate_about`).
 * A minimal box has a face flush with a hull facet, or adjacent faces flush with hull edges
   (O'Rourke 1985). Candidate axes (:func:`candidate_axes_kernel`) are the PCA axes, the facet
-  normals and the normals of planes through two of the longest hull edges, ranked by a lower
+  normals and the normals of planes through two of the longest hull edges or two of the
+  sharpest (length times the angle the hull turns there, :func:`sharpest_edges`), ranked by a lower
   bound on the volume (the hull's width times the area of its shadow) and thinned to one per
   degree. A candidate whose bound is above the ``starts``-th smallest box turned so far cannot
   start the polish and is not turned.
@@ -239,25 +240,16 @@ def _take_distinct(
 
 
 @nb.njit
-def _edge_pair_axes(vertices: np.ndarray, edges: np.ndarray, count: int) -> np.ndarray:
-    """
-    Return the unit normals of the planes spanned by two of the `count` longest hull edges.
-
-    A face can be flush with two hull edges without lying on a facet (for a tetrahedron, with two
-    opposite edges); such faces' normals are candidate axes too.
-    """
+def longest_edges(vertices: np.ndarray, edges: np.ndarray, count: int) -> np.ndarray:
+    """Return the ids of the `count` longest hull edges, longest first (ties in edge order)."""
     count = min(count, edges.shape[0])
-    if count < 2:
-        return np.zeros((0, 3))
     longest = np.full(count, -1, dtype=np.int64)
     lengths = np.full(count, -1.0)
     for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
         length = 0.0
         for k in range(3):
-            length += (vertices[b, k] - vertices[a, k]) ** 2
-        if length > lengths[count - 1]:
+            length += (vertices[edges[e, 1], k] - vertices[edges[e, 0], k]) ** 2
+        if count > 0 and length > lengths[count - 1]:
             i = count - 1
             while i > 0 and lengths[i - 1] < length:
                 lengths[i] = lengths[i - 1]
@@ -265,10 +257,72 @@ def _edge_pair_axes(vertices: np.ndarray, edges: np.ndarray, count: int) -> np.n
                 i -= 1
             lengths[i] = length
             longest[i] = e
+    return longest
+
+
+@nb.njit
+def sharpest_edges(
+    vertices: np.ndarray,
+    edges: np.ndarray,
+    edge_facets: np.ndarray,
+    normals: np.ndarray,
+    count: int,
+) -> np.ndarray:
+    """
+    Return the ids of the `count` hull edges of largest length times turning angle, largest first.
+
+    A face flush with an edge but with neither of its facets has its normal between the two
+    facets' normals, on an arc as long as the angle the hull turns at the edge: a long edge
+    between nearly coplanar facets offers almost no such faces (the facets' normals are candidate
+    axes already), a sharp one offers many. Ties keep the edges' order.
+    """
+    count = min(count, edges.shape[0])
+    sharpest = np.full(count, -1, dtype=np.int64)
+    scores = np.full(count, -1.0)
+    for e in range(edges.shape[0] if count > 0 else 0):
+        length = 0.0
+        for k in range(3):
+            length += (vertices[edges[e, 1], k] - vertices[edges[e, 0], k]) ** 2
+        length = math.sqrt(length)
+        f = edge_facets[e, 0]
+        g = edge_facets[e, 1]
+        cosine = normals[f, 0] * normals[g, 0] + normals[f, 1] * normals[g, 1]
+        cosine += normals[f, 2] * normals[g, 2]
+        cosine = min(1.0, max(-1.0, cosine))
+        # The turn is at most pi sqrt((1 - cos) / 2) (as sin x >= 2 x / pi on [0, pi / 2]):
+        # an edge that cannot beat the last one kept needs no arc cosine.
+        if length * math.pi * math.sqrt(0.5 * (1.0 - cosine)) <= scores[count - 1]:
+            continue
+        score = length * math.acos(cosine)
+        if score > scores[count - 1]:
+            i = count - 1
+            while i > 0 and scores[i - 1] < score:
+                scores[i] = scores[i - 1]
+                sharpest[i] = sharpest[i - 1]
+                i -= 1
+            scores[i] = score
+            sharpest[i] = e
+    return sharpest
+
+
+@nb.njit
+def edge_pair_axes(vertices: np.ndarray, edges: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+    """
+    Return the unit normals of the planes spanned by two of the `chosen` hull edges (their ids).
+
+    A face can be flush with two hull edges without lying on a facet (for a tetrahedron, with two
+    opposite edges); such faces' normals are candidate axes too.
+    """
+    count = chosen.shape[0]
+    if count < 2:
+        return np.zeros((0, 3))
     directions = np.empty((count, 3))
     for i in range(count):
-        e = longest[i]
-        norm = math.sqrt(lengths[i])
+        e = chosen[i]
+        length = 0.0
+        for k in range(3):
+            length += (vertices[edges[e, 1], k] - vertices[edges[e, 0], k]) ** 2
+        norm = math.sqrt(length)
         for k in range(3):
             directions[i, k] = (vertices[edges[e, 1], k] - vertices[edges[e, 0], k]) / norm
     out = np.empty((count * (count - 1) // 2, 3))
@@ -317,9 +371,11 @@ def candidate_axes_kernel(
     normals: np.ndarray,
     areas: np.ndarray,
     edges: np.ndarray,
+    edge_facets: np.ndarray,
     seed: int,
     candidates: int,
     pair_edges: int,
+    sharp_edges: int,
     sample_size: int,
     exhaustive: int,
 ) -> tuple:
@@ -329,15 +385,21 @@ def candidate_axes_kernel(
     The coordinates are those of the PCA frame, so its axes are the coordinate axes. Hulls with
     at most `exhaustive` facets give every distinct facet normal; larger ones the `candidates`
     of least volume bound (:func:`_volume_bounds`). Edge-pair normals of the `pair_edges`
-    longest edges are ranked the same way, and half as many kept.
+    longest edges are ranked the same way, and half as many kept; then those of the
+    `sharp_edges` sharpest edges (:func:`sharpest_edges`), a quarter as many.
 
     :return: the axes (K, 3) and their volume bounds (K,).
     """
     sample = _sample(vertices.shape[0], sample_size, seed)
     shadow = _shadow_vectors(normals, areas)
     facet_count = normals.shape[0] if normals.shape[0] <= exhaustive else candidates
-    pairs = _edge_pair_axes(vertices, edges, pair_edges)
-    out = np.empty((3 + facet_count + candidates // 2, 3))
+    pairs = edge_pair_axes(vertices, edges, longest_edges(vertices, edges, pair_edges))
+    sharp_pairs = edge_pair_axes(
+        vertices,
+        edges,
+        sharpest_edges(vertices, edges, edge_facets, normals, sharp_edges),
+    )
+    out = np.empty((3 + facet_count + candidates // 2 + candidates // 4, 3))
     out_bounds = np.empty(out.shape[0])
     size = 0
     for k in range(3):
@@ -368,6 +430,9 @@ def candidate_axes_kernel(
     if pairs.shape[0] > 0 and candidates // 2 > 0:
         bounds = _volume_bounds(pairs, vertices, sample, shadow)
         size = _take_distinct(pairs, bounds, bounds, candidates // 2, out, out_bounds, size)
+    if sharp_pairs.shape[0] > 0 and candidates // 4 > 0:
+        bounds = _volume_bounds(sharp_pairs, vertices, sample, shadow)
+        size = _take_distinct(sharp_pairs, bounds, bounds, candidates // 4, out, out_bounds, size)
     return out[:size].copy(), out_bounds[:size].copy()
 
 
@@ -541,6 +606,7 @@ def search_kernel(
     seed: int,
     candidates: int,
     pair_edges: int,
+    sharp_edges: int,
     sample_size: int,
     exhaustive: int,
     starts: int,
@@ -558,7 +624,17 @@ def search_kernel(
     """
     work = new_work(vertices, normals, edges, edge_facets)
     axes, bounds = candidate_axes_kernel(
-        vertices, normals, areas, edges, seed, candidates, pair_edges, sample_size, exhaustive
+        vertices,
+        normals,
+        areas,
+        edges,
+        edge_facets,
+        seed,
+        candidates,
+        pair_edges,
+        sharp_edges,
+        sample_size,
+        exhaustive,
     )
     count = axes.shape[0]
     kept = max(1, min(starts, count))
@@ -707,6 +783,7 @@ def warm_up() -> None:
         0,
         8,
         4,
+        6,
         200,
         32,
         4,

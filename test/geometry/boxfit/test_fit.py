@@ -105,6 +105,7 @@ def test_wrong_shapes_are_rejected(shape):
         {'seed': True},
         {'coreset_cells': -1},
         {'pair_edges': -1},
+        {'sharp_edges': -1},
     ],
 )
 def test_bad_knobs_are_rejected(knob):
@@ -490,17 +491,18 @@ def _random_hull(count, seed, rounded):
     seed=st.integers(0, 2**16),
     candidates=st.integers(1, 40),
     pair_edges=st.integers(0, 8),
+    sharp_edges=st.integers(0, 12),
     exhaustive=st.sampled_from([0, 32, 10_000]),
     rounded=st.booleans(),
 )
 def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
-    count, seed, candidates, pair_edges, exhaustive, rounded
+    count, seed, candidates, pair_edges, sharp_edges, exhaustive, rounded
 ):
     vertices, found = _random_hull(count, seed, rounded)
     sample_size = 200
     axes, _ = search.candidate_axes_kernel(
-        vertices, found.normals, found.areas, found.edges, seed, candidates, pair_edges,
-        sample_size, exhaustive,
+        vertices, found.normals, found.areas, found.edges, found.edge_facets, seed, candidates,
+        pair_edges, sharp_edges, sample_size, exhaustive,
     )  # fmt: skip
     sample = search._sample(len(vertices), sample_size, seed)
     facets = len(found.normals)
@@ -517,11 +519,62 @@ def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
         normals = np.ascontiguousarray(found.normals[listed])
         bounds = search._volume_bounds(normals, vertices, sample, shadow)
         expected = _distinct_by_bound(normals, bounds, candidates, np.eye(3))
-    pairs = search._edge_pair_axes(vertices, found.edges, pair_edges)
+    longest = search.longest_edges(vertices, found.edges, pair_edges)
+    pairs = search.edge_pair_axes(vertices, found.edges, longest)
     if len(pairs) and candidates // 2:
         bounds = search._volume_bounds(pairs, vertices, sample, shadow)
         expected = _distinct_by_bound(pairs, bounds, candidates // 2, expected)
+    sharp = search.sharpest_edges(
+        vertices, found.edges, found.edge_facets, found.normals, sharp_edges
+    )
+    pairs = search.edge_pair_axes(vertices, found.edges, sharp)
+    if len(pairs) and candidates // 4:
+        bounds = search._volume_bounds(pairs, vertices, sample, shadow)
+        expected = _distinct_by_bound(pairs, bounds, candidates // 4, expected)
     np.testing.assert_array_equal(axes, np.array(expected))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    count=st.integers(6, 400),
+    seed=st.integers(0, 2**16),
+    pair_edges=st.integers(0, 30),
+    rounded=st.booleans(),
+)
+@pytest.mark.parametrize('order', ['longest', 'sharpest'])
+def test_the_edge_pairs_come_from_the_longest_or_the_sharpest_edges(
+    order, count, seed, pair_edges, rounded
+):
+    # Sharpness is length times the angle between the edge's two facet normals; the chosen
+    # edges are the largest, in order, and each pair's axis is perpendicular to both edges.
+    vertices, found = _random_hull(count, seed, rounded)
+    directions = vertices[found.edges[:, 1]] - vertices[found.edges[:, 0]]
+    lengths = np.linalg.norm(directions, axis=1)
+    if order == 'longest':
+        chosen = search.longest_edges(vertices, found.edges, pair_edges)
+        score = lengths
+    else:
+        chosen = search.sharpest_edges(
+            vertices, found.edges, found.edge_facets, found.normals, pair_edges
+        )
+        first = found.normals[found.edge_facets[:, 0]]
+        second = found.normals[found.edge_facets[:, 1]]
+        score = lengths * np.arccos(np.clip(np.einsum('ij,ij->i', first, second), -1.0, 1.0))
+    assert len(chosen) == min(pair_edges, len(found.edges))
+    assert len(set(chosen.tolist())) == len(chosen)
+    tolerance = 1e-12 * score.max()
+    assert np.all(np.diff(score[chosen]) <= tolerance)
+    if 0 < len(chosen) < len(found.edges):
+        others = np.setdiff1d(np.arange(len(found.edges)), chosen)
+        assert score[others].max() <= score[chosen[-1]] + tolerance
+    axes = search.edge_pair_axes(vertices, found.edges, chosen)
+    units = directions[chosen] / lengths[chosen, None]
+    pairs = [(i, j) for i in range(len(chosen)) for j in range(i + 1, len(chosen))]
+    crossed = [np.cross(units[i], units[j]) for i, j in pairs]
+    expected = [c / np.linalg.norm(c) for c in crossed if np.linalg.norm(c) > 1e-9]
+    assert axes.shape == (len(expected), 3)
+    if len(expected):
+        np.testing.assert_allclose(axes, np.array(expected), atol=1e-9)
 
 
 def _cube_map_bins(normals, areas):
@@ -594,7 +647,7 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps,
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
     work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     axes, _ = search.candidate_axes_kernel(
-        vertices, found.normals, found.areas, found.edges, *knobs
+        vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs
     )
     turned = [_turn(vertices, found, axis) for axis in axes]
     listed = _distinct_smallest(turned, min(starts, len(axes)), distinct)
@@ -620,6 +673,7 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps,
     seed=st.integers(0, 2**16),
     candidates=st.integers(1, 24),
     pair_edges=st.integers(0, 6),
+    sharp_edges=st.integers(0, 9),
     exhaustive=st.sampled_from([0, 32]),
     starts=st.integers(1, 6),
     rounds=st.integers(1, 3),
@@ -633,6 +687,7 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     seed,
     candidates,
     pair_edges,
+    sharp_edges,
     exhaustive,
     starts,
     rounds,
@@ -644,7 +699,7 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     # Axes and grid directions ruled out by their volume bounds change nothing.
     vertices, found = _random_hull(count, seed, rounded)
     # Few candidates, starts and rounds leave the grid directions something to find.
-    knobs = (seed, candidates, pair_edges, 200, exhaustive)  # 200: the sample size
+    knobs = (seed, candidates, pair_edges, sharp_edges, 200, exhaustive)  # 200: sample size
     volume, frame = search.search_kernel(
         vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs,
         starts, rounds, grid_size, walk_steps, fit.WALK_STEP, 2, distinct,
