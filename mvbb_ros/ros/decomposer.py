@@ -116,7 +116,14 @@ def main(args: Sequence[str] | None = None) -> int:
         )
     try:
         with ros_context(arguments):
-            return _run(arguments)
+            try:
+                return _run(arguments)
+            except Exception:
+                # SIGINT's handler shuts rclpy down on its own thread: landing while the node
+                # starts, it fails whatever rclpy call comes next. That is a stop, not an error.
+                if not rclpy.ok():
+                    return 0
+                raise
     except rclpy_implementation.RCLError as error:  # e.g. a parameter file that is not YAML
         print(f'decomposer: cannot start: {str(error).splitlines()[0]}', file=sys.stderr)
         return 2

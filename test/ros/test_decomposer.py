@@ -86,3 +86,17 @@ def test_the_node_starts_with_a_home_it_cannot_write(tmp_path):
     output = ''.join(lines) + rest
     assert process.returncode == 0, output
     assert output.count('cannot write ROS log files in') == 1 and 'Traceback' not in output
+
+
+def test_a_sigint_before_the_node_spins_is_a_clean_exit(monkeypatch):
+    # SIGINT's handler shuts rclpy down; landing after the constructor but before the executor
+    # exists, it made the executor's creation fail and the node exit 2 ("cannot start").
+    real_spin = rclpy.spin
+
+    def shut_down_then_spin(node, *args, **kwargs):
+        rclpy.shutdown()  # what SIGINT's handler does, on its own thread
+        real_spin(node, *args, **kwargs)
+
+    monkeypatch.setattr(rclpy, 'spin', shut_down_then_spin)
+    assert main(['decomposer']) == 0
+    assert not rclpy.ok()
