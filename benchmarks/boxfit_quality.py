@@ -3,12 +3,14 @@ Box fit quality on thousands of varied clouds, against the slow exhaustive refer
 
 The clouds (rotated, cropped and sub-sampled shared scans, resampled dense bunny range scans,
 random partial views of the shared meshes) and the reference are those of
-``test/support/boxfit_reference.py``. For every cloud it fits the box three ways, as the package
+``test/support/boxfit_reference.py``. For every cloud it fits the box four ways, as the package
 does:
 
 * ``default``: :func:`mvbb_ros.geometry.boxfit.fit.minimum_bounding_box` with its defaults;
 * ``root``: the decomposition's root fit (the defaults with ``fit.ROOT_SEARCH``);
-* ``part``: the decomposition's part fit (:func:`mvbb_ros.geometry.boxfit.fit.fit_part`);
+* ``part``: the decomposition's light part fit (:func:`mvbb_ros.geometry.boxfit.fit.fit_part`,
+  ``part_search: light``);
+* ``full part``: the node's part fit (``fit_part(points, full=True)``, ``part_search: full``);
 
 and prints, per fit and cloud kind, the cloud count and the worst, 99th percentile and median
 of the volume divided by the reference's (below 1 means the fit beat the reference), the
@@ -41,6 +43,7 @@ FITS: dict[str, Callable[[np.ndarray], Box]] = {
     'default': minimum_bounding_box,
     'root': lambda points: minimum_bounding_box(points, **ROOT_SEARCH),
     'part': fit_part,
+    'full part': lambda points: fit_part(points, full=True),
 }
 
 
