@@ -240,6 +240,18 @@ def _take_distinct(
 
 
 @nb.njit
+def _keep_largest(values: np.ndarray, ids: np.ndarray, value: float, item: int) -> None:
+    """Insert `item` into the largest-first `values` and `ids`, after its equals; drop the last."""
+    i = values.shape[0] - 1
+    while i > 0 and values[i - 1] < value:
+        values[i] = values[i - 1]
+        ids[i] = ids[i - 1]
+        i -= 1
+    values[i] = value
+    ids[i] = item
+
+
+@nb.njit
 def longest_edges(vertices: np.ndarray, edges: np.ndarray, count: int) -> np.ndarray:
     """Return the ids of the `count` longest hull edges, longest first (ties in edge order)."""
     count = min(count, edges.shape[0])
@@ -250,13 +262,7 @@ def longest_edges(vertices: np.ndarray, edges: np.ndarray, count: int) -> np.nda
         for k in range(3):
             length += (vertices[edges[e, 1], k] - vertices[edges[e, 0], k]) ** 2
         if count > 0 and length > lengths[count - 1]:
-            i = count - 1
-            while i > 0 and lengths[i - 1] < length:
-                lengths[i] = lengths[i - 1]
-                longest[i] = longest[i - 1]
-                i -= 1
-            lengths[i] = length
-            longest[i] = e
+            _keep_largest(lengths, longest, length, e)
     return longest
 
 
@@ -295,13 +301,7 @@ def sharpest_edges(
             continue
         score = length * math.acos(cosine)
         if score > scores[count - 1]:
-            i = count - 1
-            while i > 0 and scores[i - 1] < score:
-                scores[i] = scores[i - 1]
-                sharpest[i] = sharpest[i - 1]
-                i -= 1
-            scores[i] = score
-            sharpest[i] = e
+            _keep_largest(scores, sharpest, score, e)
     return sharpest
 
 
