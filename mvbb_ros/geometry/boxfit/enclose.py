@@ -95,6 +95,7 @@ def add_leaks(
     max_rounds: int,
     walk_steps: int,
     walk_step: float,
+    edge_pivots: int,
 ) -> tuple:
     """
     Re-check a frame searched on a coreset's hull against every point, and re-settle it.
@@ -141,6 +142,7 @@ def add_leaks(
             walk_steps,
             walk_step,
             1,
+            edge_pivots,
         )
     return frame, np.zeros((2, 3)), False
 

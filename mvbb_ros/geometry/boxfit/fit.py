@@ -13,9 +13,10 @@ off by default) searches Barequet and Har-Peled's grid of directions around the 
 best frame is then walked on the sphere of axes in small tilts, first its first axis, then its
 second (:func:`mvbb_ros.geometry.boxfit.search.settle`): a minimal box whose faces are flush
 with hull edges rather than a facet lies between the candidate axes, and a box stuck where no
-tilt of one axis helps can shrink when another tilts. The final box is the smallest of the
-searched frame's box, the PCA box and the axis-aligned box, each grown around every input
-point: never worse than either, and always enclosing.
+tilt of one axis helps can shrink when another tilts; last, the thinnest axis pivots about the
+hull edges flush with its faces (:func:`mvbb_ros.geometry.boxfit.search.pivot_thinnest`). The
+final box is the smallest of the searched frame's box, the PCA box and the axis-aligned box,
+each grown around every input point: never worse than either, and always enclosing.
 
 What runs where, for N points whose searched hull has H vertices, F ~ 2H facets and E ~ 3H edges
 (all in one compiled call, :func:`fit_kernel`; the Python wrapper only checks the input):
@@ -120,6 +121,7 @@ def fit_kernel(
     walk_step: float,
     walk_axes: int,
     distinct_starts: int,
+    edge_pivots: int,
 ) -> tuple:
     """
     Fit the minimum-volume oriented box of finite points (see the module notes).
@@ -280,6 +282,7 @@ def fit_kernel(
                 walk_step,
                 walk_axes,
                 distinct_starts,
+                edge_pivots,
             )
             copy_frame(frame, frames[used])
             used += 1
@@ -311,6 +314,7 @@ def fit_kernel(
                 walk_step,
                 walk_axes,
                 distinct_starts,
+                edge_pivots,
             )
             if searched.shape[0] < count:
                 frame, bounds, exact = add_leaks(
@@ -322,6 +326,7 @@ def fit_kernel(
                     max_rounds,
                     walk_steps,
                     walk_step,
+                    edge_pivots,
                 )
                 if exact:
                     known[used] = True
@@ -390,6 +395,7 @@ def fit_box(
     walk_steps: int = 6,
     walk_axes: int = 3,
     distinct_starts: int = 1,
+    edge_pivots: int = 1,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return the minimum-volume oriented box enclosing `points` as plain arrays.
@@ -430,6 +436,10 @@ def fit_box(
     :param distinct_starts: 1: the polish starts from the smallest boxes whose axes do not pair
         up within :data:`~mvbb_ros.geometry.boxfit.search.SAME_START`; 0: from the smallest boxes,
         near-copies included.
+    :param edge_pivots: 1: after the walks, turn the box about the axes that keep a hull edge
+        flush with a face of its thinnest extent
+        (:func:`~mvbb_ros.geometry.boxfit.search.pivot_thinnest`): the ridge of thin boxes that
+        no tilt of the walk follows; 0: off.
     :return: centre (3,), rotation (3, 3) with the box axes as columns, full extents (3,), in
         the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
@@ -449,6 +459,7 @@ def fit_box(
         walk_steps=walk_steps,
         walk_axes=walk_axes,
         distinct_starts=distinct_starts,
+        edge_pivots=edge_pivots,
     )
     return _run(_as_points(points), knobs)
 
@@ -470,6 +481,7 @@ class _Knobs(NamedTuple):
     walk_steps: int
     walk_axes: int
     distinct_starts: int
+    edge_pivots: int
 
 
 def _knobs(
@@ -488,6 +500,7 @@ def _knobs(
     walk_steps: int,
     walk_axes: int,
     distinct_starts: int,
+    edge_pivots: int,
 ) -> _Knobs:
     """Check the knobs of :func:`fit_box` (ValueError naming a bad one); return them."""
     return _Knobs(
@@ -505,6 +518,7 @@ def _knobs(
         _check_knob('walk_steps', walk_steps, 0),
         _check_knob('walk_axes', walk_axes, 1),
         _check_flag('distinct_starts', distinct_starts),
+        _check_flag('edge_pivots', edge_pivots),
     )
 
 
@@ -534,6 +548,7 @@ def _run(points: FloatArray, knobs: _Knobs) -> tuple[FloatArray, FloatArray, Flo
         WALK_STEP,
         knobs.walk_axes,
         knobs.distinct_starts,
+        knobs.edge_pivots,
     )
 
 
@@ -557,6 +572,7 @@ PART_SEARCH: dict[str, int] = {
     'walk_steps': 2,
     'walk_axes': 1,
     'distinct_starts': 0,
+    'edge_pivots': 0,
 }
 _PART_KNOBS = _DEFAULT_KNOBS._replace(**PART_SEARCH)
 #: The knobs of light part fits of fewer than ``PART_SEARCH['coreset_min']`` points, hulled on
@@ -615,6 +631,7 @@ def minimum_bounding_box(
     walk_steps: int = 6,
     walk_axes: int = 3,
     distinct_starts: int = 1,
+    edge_pivots: int = 1,
 ) -> Box:
     """
     Return the minimum-volume oriented box enclosing `points` (Barequet-Har-Peled style).
@@ -642,6 +659,7 @@ def minimum_bounding_box(
     :param walk_steps: see :func:`fit_box`.
     :param walk_axes: see :func:`fit_box`.
     :param distinct_starts: see :func:`fit_box`.
+    :param edge_pivots: see :func:`fit_box`.
     :return: the box, in the units and frame of the points.
     :raises ValueError: on an empty array, a wrong shape, non-finite coordinates or bad knobs.
     """
@@ -661,6 +679,7 @@ def minimum_bounding_box(
         walk_steps=walk_steps,
         walk_axes=walk_axes,
         distinct_starts=distinct_starts,
+        edge_pivots=edge_pivots,
     )
     # The kernel's arrays are fresh and meet the box's invariants: no checks, no copies.
     return Box.trusted(center, rotation, extents)

@@ -106,6 +106,7 @@ def test_wrong_shapes_are_rejected(shape):
         {'coreset_cells': -1},
         {'pair_edges': -1},
         {'sharp_edges': -1},
+        {'edge_pivots': 2},
     ],
 )
 def test_bad_knobs_are_rejected(knob):
@@ -531,6 +532,9 @@ def test_candidate_axes_are_the_distinct_axes_of_least_volume_bound(
     if len(pairs) and candidates // 4:
         bounds = search._volume_bounds(pairs, vertices, sample, shadow)
         expected = _distinct_by_bound(pairs, bounds, candidates // 4, expected)
+    # Last, every pair of the very sharpest edges not yet taken, in pair order.
+    pairs = search.edge_pair_axes(vertices, found.edges, sharp[: search.SHARPEST_PAIRED])
+    expected = _distinct_by_bound(pairs, np.arange(len(pairs)), len(pairs), expected)
     np.testing.assert_array_equal(axes, np.array(expected))
 
 
@@ -643,7 +647,7 @@ def _distinct_smallest(turned, kept, distinct):
     return listed
 
 
-def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct):
+def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct, pivots):
     """Search with every candidate axis and grid direction turned (no bounds): a reference."""
     work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
     axes, _ = search.candidate_axes_kernel(
@@ -664,7 +668,9 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps,
         if not best < volume * (1.0 - search.POLISH_TOLERANCE):
             break
         volume, frame = search.polish(vertices, work, best_frame[None], np.array([best]), rounds)
-    return search.settle(vertices, work, frame, volume, rounds, walk_steps, fit.WALK_STEP, 2)
+    return search.settle(
+        vertices, work, frame, volume, rounds, walk_steps, fit.WALK_STEP, 2, pivots
+    )
 
 
 @settings(max_examples=200, deadline=None)
@@ -681,6 +687,7 @@ def _plain_search(vertices, found, knobs, starts, rounds, grid_size, walk_steps,
     walk_steps=st.integers(0, 3),
     rounded=st.booleans(),
     distinct=st.sampled_from([0, 1]),
+    pivots=st.sampled_from([0, 1]),
 )
 def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     count,
@@ -695,6 +702,7 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     walk_steps,
     rounded,
     distinct,
+    pivots,
 ):
     # Axes and grid directions ruled out by their volume bounds change nothing.
     vertices, found = _random_hull(count, seed, rounded)
@@ -702,10 +710,10 @@ def test_the_search_finds_the_box_it_finds_with_every_axis_turned(
     knobs = (seed, candidates, pair_edges, sharp_edges, 200, exhaustive)  # 200: sample size
     volume, frame = search.search_kernel(
         vertices, found.normals, found.areas, found.edges, found.edge_facets, *knobs,
-        starts, rounds, grid_size, walk_steps, fit.WALK_STEP, 2, distinct,
+        starts, rounds, grid_size, walk_steps, fit.WALK_STEP, 2, distinct, pivots,
     )  # fmt: skip
     expected = _plain_search(
-        vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct
+        vertices, found, knobs, starts, rounds, grid_size, walk_steps, distinct, pivots
     )
     expected_volume, expected_frame = expected
     assert volume == expected_volume
