@@ -160,6 +160,7 @@ def test_property_the_pivots_never_grow_the_box_and_return_its_frame(seed, count
         np.testing.assert_array_equal(pivoted, frame)
 
 
+@pytest.mark.slow
 def test_the_pivots_find_the_thin_boxes_flush_with_edges_on_opposite_faces():
     """
     Find the boxes of thin plates whose two large faces each hold a hull edge.
