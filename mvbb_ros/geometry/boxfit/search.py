@@ -753,9 +753,7 @@ def search_kernel(
 
 
 @nb.njit
-def pivot_thinnest(
-    vertices: np.ndarray, work: tuple, edges: np.ndarray, frame: np.ndarray, volume: float
-) -> tuple:
+def pivot_thinnest(vertices: np.ndarray, work: tuple, frame: np.ndarray, volume: float) -> tuple:
     """
     Turn a box about the axes that keep an edge flush with a face of its thinnest extent.
 
@@ -766,9 +764,12 @@ def pivot_thinnest(
     lifts one of its ends. The candidate axes are the normals of the planes through a flush
     edge and an edge leaving a touching vertex of the opposite face, within :data:`PIVOT_TILT`.
 
+    :param work: the hull's edges and reusable arrays
+        (:func:`~mvbb_ros.geometry.boxfit.turn.new_work`).
     :return: the volume and frame (3, 3) of the smallest box found (the input when none is
         smaller by :data:`POLISH_TOLERANCE`).
     """
+    edges = work[9]  # new_work's layout: the hull's (E, 2) edges
     count = vertices.shape[0]
     low = np.full(3, np.inf)
     high = np.full(3, -np.inf)
@@ -794,6 +795,7 @@ def pivot_thinnest(
     best_frame = frame.copy()
     best = volume
     trial = np.empty((3, 3))
+    axis = np.empty((1, 3))
     for side in range(2):
         flush = at_low if side == 0 else at_high
         opposite = at_high if side == 0 else at_low
@@ -808,12 +810,17 @@ def pivot_thinnest(
                 c, d = edges[f, 0], edges[f, 1]
                 if opposite[c] == opposite[d]:  # an edge leaving a touching vertex
                     continue
-                ex = vertices[d, 0] - vertices[c, 0]
-                ey = vertices[d, 1] - vertices[c, 1]
-                ez = vertices[d, 2] - vertices[c, 2]
-                x = dy * ez - dz * ey
-                y = dz * ex - dx * ez
-                z = dx * ey - dy * ex
+                _cross_into(
+                    axis,
+                    0,
+                    dx,
+                    dy,
+                    dz,
+                    vertices[d, 0] - vertices[c, 0],
+                    vertices[d, 1] - vertices[c, 1],
+                    vertices[d, 2] - vertices[c, 2],
+                )
+                x, y, z = axis[0, 0], axis[0, 1], axis[0, 2]
                 norm = math.sqrt(x * x + y * y + z * z)
                 if not abs(x * nx + y * ny + z * nz) >= limit * norm or norm == 0.0:
                     continue
@@ -861,7 +868,7 @@ def settle(
     copy_frame(frame, frames[0])
     volume, frame = polish(vertices, work, frames, np.array([volume]), max_rounds)
     if edge_pivots:
-        return pivot_thinnest(vertices, work, work[9], frame, volume)
+        return pivot_thinnest(vertices, work, frame, volume)
     return volume, frame
 
 

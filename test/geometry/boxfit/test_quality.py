@@ -149,7 +149,7 @@ def test_property_the_pivots_never_grow_the_box_and_return_its_frame(seed, count
     start = Rotation.from_rotvec([tilt, 0.5 * tilt, 0.0]).as_matrix()
     frame = np.empty((3, 3))
     volume = turn.rotate_about(vertices, work, *start[:, 2], frame)
-    pivoted_volume, pivoted = search.pivot_thinnest(vertices, work, found.edges, frame, volume)
+    pivoted_volume, pivoted = search.pivot_thinnest(vertices, work, frame, volume)
     assert pivoted_volume <= volume
     np.testing.assert_allclose(pivoted.T @ pivoted, np.eye(3), atol=1e-12)
     assert np.linalg.det(pivoted) == pytest.approx(1.0)
