@@ -23,19 +23,23 @@ taken, never the distance). The kept indices are Open3D's on every cloud tested.
 The k nearest neighbours come from a kd-tree built for the call: median splits on the widest
 axis of each node's bounding box down to leaves of at most :data:`LEAF_SIZE` points, points
 copied into tree order (each leaf is contiguous), nodes in an implicit binary layout (no child
-pointers). The points are queried in tree order, so that consecutive queries are neighbours:
-the previous query's k-th distance plus the step between the two points bounds this one's
-(triangle inequality), which prunes the first leaves. Each query walks the tree nearest child
-first, prunes nodes whose box is farther than the current k-th distance, and keeps the k best
-squared distances sorted by insertion. A kd-tree rather than a uniform grid: it adapts to the
-density, which on a lidar sweep's voxel centroids varies by orders of magnitude between near
-and far (a grid sized for the near field makes the far queries scan thousands of empty cells).
+pointers). The points are queried leaf by leaf, in tree order, so that consecutive leaves are
+neighbours: a leaf's points share one walk of the tree, which collects the points within a
+reach of the leaf's box (the previous leaf's largest k-th distance, widened a little); each
+point's k nearest are the k smallest of its distances to those, kept sorted by insertion, when
+at least k of them lie within the reach (a point left out is farther than the reach). A point
+with fewer, and every point of a range's first leaf, walks the tree itself: nearest child
+first, pruning nodes farther than the current k-th distance, bounded from the start by the
+previous point's k-th distance plus the step between the two (triangle inequality). A kd-tree
+rather than a uniform grid: it adapts to the density, which on a lidar sweep's voxel centroids
+varies by orders of magnitude between near and far (a grid sized for the near field makes the
+far queries scan thousands of empty cells).
 
 Cost: below Open3D's own ``remove_statistical_outlier`` on the same centroids
-(``docs/performance.md``); the profile is dominated by
-mispredicted branches in the k-best insertion and the tree walk, not by arithmetic. Tried and
-measured no faster: a max-heap with a final sort, leaf sizes 6 to 64, a branch-free vectorised
-insertion, collecting candidates within the bound and sorting them by rank counting.
+(``docs/performance.md``); the profile is dominated by mispredicted branches in the k-best
+insertion, not by arithmetic. Tried and measured no faster: a max-heap with a final sort, leaf
+sizes 6 to 64, a branch-free vectorised insertion, ranking the candidates by counting, sorting
+a leaf's candidates by their distance to the leaf's centre.
 """
 
 from __future__ import annotations
@@ -54,11 +58,17 @@ __all__ = ['LEAF_SIZE', 'mean_neighbor_distances', 'remove_statistical_outliers'
 LEAF_SIZE = 12
 #: Deepest tree :func:`_build` makes (2**40 leaves: more points than memory holds).
 _MAX_DEPTH = 40
+#: A kd-tree leaf's points share the candidates within this factor of the previous leaf's
+#: largest k-th distance of the leaf's box (:func:`_fill`): 1.1-1.2 measured alike.
+LEAF_REACH = 1.15
+#: Each point first takes the candidates within this factor of the previous point's k-th
+#: distance (squared), a guess that mostly holds k of them and few more (:func:`_fill`).
+FIRST_GUESS = 1.15
 #: Fewer points than this are queried on one thread (a split would cost more than it saves).
 MIN_SPLIT_POINTS = 2000
-#: A split cloud's queries go in ranges of about this many points (at least
+#: A split cloud's queries go in ranges of whole leaves, about this many points (at least
 #: :data:`MIN_RANGES_PER_WORKER` per thread), taken by whichever thread is free: a range's first
-#: query has no previous one to bound it.
+#: leaf has no previous one to share candidates with.
 RANGE_POINTS = 256
 MIN_RANGES_PER_WORKER = 4
 
@@ -245,6 +255,66 @@ def _query(
 
 
 @njit
+def _leaf_candidates(
+    tree_points: Any,
+    lower: Any,
+    upper: Any,
+    starts: Any,
+    ends: Any,
+    first_leaf: Any,
+    leaf: Any,
+    reach: Any,
+    stack: Any,
+    xs: Any,
+    ys: Any,
+    zs: Any,
+) -> Any:
+    """
+    Copy into `xs`, `ys`, `zs` every point within `reach` (squared) of a leaf's box.
+
+    The leaves whose boxes are farther are skipped whole. Every point left out is farther than
+    `reach` from every point of the leaf, in floating point too: a rounded difference grows with
+    its operands, so a point's distance to a point of the box is at least its distance to the
+    box. :return: how many points were copied.
+    """
+    copied = 0
+    top = 0
+    stack[0] = 0
+    while top >= 0:
+        node = stack[top]
+        top -= 1
+        dx = max(lower[node, 0] - upper[leaf, 0], 0.0, lower[leaf, 0] - upper[node, 0])
+        dy = max(lower[node, 1] - upper[leaf, 1], 0.0, lower[leaf, 1] - upper[node, 1])
+        dz = max(lower[node, 2] - upper[leaf, 2], 0.0, lower[leaf, 2] - upper[node, 2])
+        if (dx * dx + dy * dy) + dz * dz > reach:
+            continue
+        if node < first_leaf:
+            top += 1
+            stack[top] = 2 * node + 2
+            top += 1
+            stack[top] = 2 * node + 1
+            continue
+        for i in range(starts[node], ends[node]):
+            x, y, z = tree_points[i, 0], tree_points[i, 1], tree_points[i, 2]
+            dx = max(lower[leaf, 0] - x, 0.0, x - upper[leaf, 0])
+            dy = max(lower[leaf, 1] - y, 0.0, y - upper[leaf, 1])
+            dz = max(lower[leaf, 2] - z, 0.0, z - upper[leaf, 2])
+            xs[copied], ys[copied], zs[copied] = x, y, z
+            copied += (dx * dx + dy * dy) + dz * dz <= reach  # written always, kept when near
+    return copied
+
+
+@njit
+def _within(squared: Any, count: Any, bound: Any, chosen: Any) -> Any:
+    """Copy the first `count` squared distances that are at most `bound` into `chosen`."""
+    taken = 0
+    for i in range(count):
+        chosen[taken] = squared[i]
+        taken += squared[i] <= bound
+    return taken
+
+
+@njit
 def _fill(
     tree_points: Any,
     order: Any,
@@ -259,40 +329,95 @@ def _fill(
     result: Any,
 ) -> None:
     """
-    Write the mean distances of the points ``begin:end`` in tree order into `result`.
+    Write the mean distances of the points of the leaves ``begin:end`` into `result`.
 
-    Each point's answer is its own k nearest distances, whatever the query before it: the
-    previous query only bounds the search (the first of a range starts unbounded), so the
-    ranges of a split give the points the same values as one pass.
+    The leaves are numbered from 0 in tree order. A leaf's points share one list of candidates:
+    the points within :data:`LEAF_REACH` times the previous leaf's largest k-th distance of the
+    leaf's box (:func:`_leaf_candidates`). Each point's k nearest are then the k smallest of its
+    distances to them, taken from those within a first guess (:data:`FIRST_GUESS` times the
+    previous point's k-th distance, squared), else within that distance plus the step between
+    the two points (triangle inequality), else within the whole reach; a point with fewer than
+    k candidates within the reach asks the tree (:func:`_query`), as does every point of a
+    range's first leaf. Each point's answer is its own k nearest distances whatever came before
+    it, so the ranges of a split give the points the same values as one pass.
     """
+    count = tree_points.shape[0]
     first_leaf = (1 << depth) - 1
     best = np.empty(k + 1, dtype=np.float64)
     best[0] = -np.inf  # a sentinel for the insertion
     stack = np.empty(2 * _MAX_DEPTH + 2, dtype=np.int64)
     stack_distances = np.empty(2 * _MAX_DEPTH + 2, dtype=np.float64)
+    xs = np.empty(count, dtype=np.float64)
+    ys = np.empty(count, dtype=np.float64)
+    zs = np.empty(count, dtype=np.float64)
+    squared = np.empty(count, dtype=np.float64)
+    chosen = np.empty(count, dtype=np.float64)
+    reach = np.inf  # squared; none before the range's first leaf
     previous_x = previous_y = previous_z = 0.0
-    radius = np.inf  # the previous query's k-th distance
-    for i in range(begin, end):  # in tree order: consecutive queries are close to each other
-        x, y, z = tree_points[i, 0], tree_points[i, 1], tree_points[i, 2]
-        # The previous point's k neighbours are within radius + |step| of this one (triangle
-        # inequality), so nothing farther needs a look; the factor covers rounding.
-        step = np.sqrt((x - previous_x) ** 2 + (y - previous_y) ** 2 + (z - previous_z) ** 2)
-        bound = ((radius + step) * (1.0 + 1e-9)) ** 2
-        found = _query(
-            tree_points, lower, upper, starts, ends, first_leaf, x, y, z, k, bound, best,
-            stack, stack_distances,
-        )  # fmt: skip
-        if found < k:  # cannot happen in exact arithmetic; a safety net costing one query
-            _query(
-                tree_points, lower, upper, starts, ends, first_leaf, x, y, z, k, np.inf, best,
-                stack, stack_distances,
+    radius = -1.0  # the previous point's k-th distance (none yet)
+    for leaf in range(first_leaf + begin, first_leaf + end):
+        if ends[leaf] <= starts[leaf]:
+            continue
+        candidates = 0
+        if reach < np.inf:
+            candidates = _leaf_candidates(
+                tree_points, lower, upper, starts, ends, first_leaf, leaf, reach, stack, xs, ys,
+                zs,
             )  # fmt: skip
-        total = 0.0
-        for j in range(1, k + 1):  # nearest first, as Open3D sums them
-            total += np.sqrt(best[j])
-        result[order[i]] = total / k
-        radius = np.sqrt(best[k])
-        previous_x, previous_y, previous_z = x, y, z
+        widest = 0.0  # the leaf's largest k-th distance, squared
+        for i in range(starts[leaf], ends[leaf]):
+            x, y, z = tree_points[i, 0], tree_points[i, 1], tree_points[i, 2]
+            step = np.sqrt((x - previous_x) ** 2 + (y - previous_y) ** 2 + (z - previous_z) ** 2)
+            # k points lie within radius + step of this one (triangle inequality); the factor
+            # covers rounding.
+            chained = ((radius + step) * (1.0 + 1e-9)) ** 2 if radius >= 0.0 else np.inf
+            for j in range(candidates):
+                dx = xs[j] - x
+                dy = ys[j] - y
+                dz = zs[j] - z
+                squared[j] = (dx * dx + dy * dy) + dz * dz
+            taken = 0
+            if radius >= 0.0:
+                taken = _within(squared, candidates, min(reach, FIRST_GUESS * radius**2), chosen)
+                if taken < k:
+                    taken = _within(squared, candidates, min(reach, chained), chosen)
+            if taken < k and candidates > 0:
+                taken = _within(squared, candidates, reach, chosen)
+            if taken >= k:
+                # The k smallest of the chosen are the k nearest: every point left out is
+                # farther than the reach, and the chosen are within it.
+                filled = 0
+                for j in range(taken):
+                    value = chosen[j]
+                    if filled < k:
+                        filled += 1
+                        at = np.uint64(filled)
+                    elif value < best[k]:
+                        at = np.uint64(k)
+                    else:
+                        continue
+                    while best[at - np.uint64(1)] > value:
+                        best[at] = best[at - np.uint64(1)]
+                        at -= np.uint64(1)
+                    best[at] = value
+            else:
+                found = _query(
+                    tree_points, lower, upper, starts, ends, first_leaf, x, y, z, k, chained,
+                    best, stack, stack_distances,
+                )  # fmt: skip
+                if found < k:  # cannot happen in exact arithmetic; a safety net
+                    _query(
+                        tree_points, lower, upper, starts, ends, first_leaf, x, y, z, k, np.inf,
+                        best, stack, stack_distances,
+                    )  # fmt: skip
+            total = 0.0
+            for j in range(1, k + 1):  # nearest first, as Open3D sums them
+                total += np.sqrt(best[j])
+            result[order[i]] = total / k
+            radius = np.sqrt(best[k])
+            widest = max(widest, best[k])
+            previous_x, previous_y, previous_z = x, y, z
+        reach = widest * LEAF_REACH**2
 
 
 @njit(
@@ -307,8 +432,8 @@ def _mean_distances(points: Any, neighbors: Any) -> Any:
     if count == 0:
         return result
     tree_points, order, lower, upper, depth, starts, ends = _build(points)
-    _fill(tree_points, order, lower, upper, depth, starts, ends, min(neighbors, count), 0, count,
-          result)  # fmt: skip
+    _fill(tree_points, order, lower, upper, depth, starts, ends, min(neighbors, count), 0,
+          1 << depth, result)  # fmt: skip
     return result
 
 
@@ -332,13 +457,13 @@ def _fill_range(
     end: Any,
     result: Any,
 ) -> None:
-    """Run :func:`_fill` on one range of the points in tree order (one worker's share)."""
+    """Run :func:`_fill` on one range of the leaves in tree order (one worker's share)."""
     _fill(tree_points, order, lower, upper, depth, starts, ends, k, begin, end, result)
 
 
 class NeighbourQueries:
     """
-    The mean neighbour distances of one cloud, in ranges of tree order any thread may take.
+    The mean neighbour distances of one cloud, in ranges of leaves any thread may take.
 
     :meth:`take` computes ranges that no thread has taken yet until none is left, so the threads
     that call it share the work whenever each comes free (a helper may start before the
@@ -351,7 +476,8 @@ class NeighbourQueries:
         self.distances = np.zeros(count, dtype=np.float64)
         self._tree = _tree(points) if count else None
         self._k = min(int(neighbors), count)
-        self._ranges = chunks(count, ranges) if count else []
+        leaves = 1 << self._tree[4] if self._tree is not None else 0
+        self._ranges = chunks(leaves, ranges) if count else []
         self._next = itertools.count()  # next() on it is atomic: each range is taken once
         self._cancelled = False
 

@@ -113,6 +113,31 @@ def test_property_equals_the_definition(points, k, ratio):
         )
 
 
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    clusters=st.integers(1, 6),
+    k=st.integers(1, 40),
+)
+def test_property_leaves_sharing_candidates_equal_the_definition(seed, clusters, k):
+    """
+    Many leaves, in clusters whose spacing differs by up to a thousand times.
+
+    A leaf's reach comes from the leaf before it: after a sparse cluster it holds far more
+    candidates than needed, after a dense one too few, and the points that find fewer than k
+    within it ask the tree. Duplicates put ties at the k-th distance.
+    """
+    rng = np.random.default_rng(seed)
+    parts = []
+    for _ in range(clusters):
+        count = int(rng.integers(1, 160))
+        scale = 10.0 ** rng.uniform(-3.0, 0.0)
+        parts.append(rng.normal(0.0, scale, (count, 3)) + rng.uniform(-5.0, 5.0, 3))
+    points = np.concatenate(parts)
+    points[rng.integers(0, len(points), len(points) // 8)] = points[0]
+    np.testing.assert_array_equal(mean_neighbor_distances(points, k), reference_means(points, k))
+
+
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     hnp.arrays(
