@@ -24,7 +24,7 @@ import heapq
 import math
 
 from mvbb_ros.arrays import IndexArray
-from mvbb_ros.common.workers import gather, Task, Workers
+from mvbb_ros.common.workers import gather, Workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.boxfit.fit import fit_part, minimum_bounding_box, ROOT_SEARCH
 from mvbb_ros.geometry.decomposition import split as splitting
@@ -168,8 +168,7 @@ def _best_split(
         others ahead of need; the split is the same), or None to fit on this thread as needed.
     """
     if pool is not None and pool.parallel and fit_parts:
-        started = _start_split(points, draft, settings, pool)
-        return None if started is None else _finish_split(started, draft, settings, others)
+        return _best_split_parallel(points, draft, settings, others, pool)
     box = draft.box
     scores = _cut_scores(points, draft, settings)
     limit = max(1, settings.rescore_cuts) if fit_parts else 1
@@ -219,28 +218,21 @@ def _cut_scores(
     )
 
 
-@dataclass
-class _Started:
-    """A node's candidate cuts, their parts' box fits already started on a pool."""
-
-    cuts: list[tuple[splitting.Cut, tuple[IndexArray, IndexArray], int]]
-    first_fits: list[Task[Box]]
-    second_fits: list[Task[Box]]
-
-    def cancel(self) -> None:
-        """Drop the fits no helper has started (their boxes are not wanted)."""
-        for task in (*self.first_fits, *self.second_fits):
-            task.cancel()
-
-
-def _start_split(
-    points: NDArray[np.float64], draft: _Draft, settings: DecompositionSettings, pool: Workers
-) -> _Started | None:
+def _best_split_parallel(
+    points: NDArray[np.float64],
+    draft: _Draft,
+    settings: DecompositionSettings,
+    others: float | None,
+    pool: Workers,
+) -> _Split | None:
     """
-    Start the box fits of every candidate cut's parts on `pool` (None without a cut).
+    Return :func:`_best_split` with fitted parts, its box fits spread over `pool`.
 
-    The larger parts first, then the others, ahead of need: :func:`_finish_split` takes them.
+    The same cuts, fits and choices as the serial path: every fit is a pure function of its
+    points and the seed. The larger parts are fitted first, the other parts are started at once
+    too, ahead of need; the fits the serial path would skip are cancelled when not yet started.
     """
+    box = draft.box
     scores = _cut_scores(points, draft, settings)
     limit = max(1, settings.rescore_cuts)
     cuts = []
@@ -257,24 +249,11 @@ def _start_split(
 
     first_fits = [pool.submit(fit(parts[larger])) for _, parts, larger in cuts]
     second_fits = [pool.submit(fit(parts[1 - larger])) for _, parts, larger in cuts]
-    return _Started(cuts, first_fits, second_fits)
-
-
-def _finish_split(
-    started: _Started, draft: _Draft, settings: DecompositionSettings, others: float | None
-) -> _Split:
-    """
-    Return :func:`_best_split` with fitted parts from the fits `started` began.
-
-    The same choices as the serial path: every fit is a pure function of its points and the
-    seed. The fits the serial path would skip are cancelled when not yet started.
-    """
-    box = draft.box
     try:
-        firsts = gather(started.first_fits)
+        firsts = gather(first_fits)
         candidates = [
             (cut, parts, larger, first)
-            for (cut, parts, larger), first in zip(started.cuts, firsts, strict=True)
+            for (cut, parts, larger), first in zip(cuts, firsts, strict=True)
         ]
         if others is not None and not any(
             _theta_star(draft, first.volume, others) < settings.gain_threshold for first in firsts
@@ -283,7 +262,6 @@ def _finish_split(
             return _Split(cut=cut, parts=parts, boxes=None, bound=first.volume)
         paper_cut = candidates[0][0]
         best: _Split | None = None
-        second_fits = started.second_fits
         for (cut, parts, larger, first), second_fit in zip(candidates, second_fits, strict=True):
             margin = (
                 RESCORE_MARGIN * box.volume if best is not None and best.cut is paper_cut else 0.0
@@ -302,10 +280,10 @@ def _finish_split(
             split = _Split(cut=cut, parts=parts, boxes=boxes)
             if best is None or split.volume < best.volume - margin:
                 best = split
-        assert best is not None, 'the first candidate is always fitted'
         return best
     finally:
-        started.cancel()
+        for task in (*first_fits, *second_fits):
+            task.cancel()
 
 
 def _others(index: int, leaf_volumes: dict[int, float]) -> float:
@@ -453,9 +431,8 @@ def decompose(
         (Box fits above).
     :return: the decomposition: the tree (``nodes``, ``root``), the leaves in node order with
         their point indices, the dropped points and the settings.
-    :param pool: workers that fit the candidate cuts' parts at once (:func:`_best_split`),
-        and the parts of the boxes waiting to be tested ahead of their turn; the decomposition
-        is the same with any, and with None (every fit on this thread).
+    :param pool: workers that fit the candidate cuts' parts at once (:func:`_best_split`);
+        the decomposition is the same with any, and with None (every fit on this thread).
     :raises ValueError: for an empty point array, a shape other than (N, 3), non-finite
         coordinates or an invalid setting; the message says which.
     """
@@ -486,11 +463,6 @@ def decompose(
 
     leaf_volumes: dict[int, float] = {0: root.box.volume}
     splits: dict[int, _Split | None] = {}
-    # With helpers, a waiting box's parts are fitted ahead of its turn (the fits do not depend
-    # on the other boxes; the decision, made in turn, does), so the helpers fit the next boxes'
-    # parts while this thread decides.
-    ahead = pool is not None and pool.parallel and settings.order != 'gain'
-    started: dict[int, _Started | None] = {}
     waiting = _Waiting(settings.order)
 
     def enqueue(indices: list[int]) -> None:
@@ -504,84 +476,63 @@ def decompose(
                 priority = drafts[i].box.volume
             entries.append((i, priority))
         waiting.push_all(entries)
-        if ahead:
-            assert pool is not None
-            for i in indices:
-                started[i] = _start_split(pts, drafts[i], settings, pool)
 
-    try:
-        enqueue([0])
-        while waiting:
-            index = waiting.pop()
-            draft = drafts[index]
-            others = _others(index, leaf_volumes)
-            if index in splits:
-                split = splits.pop(index)
-            else:
-                may_pass = _may_pass(draft, others, settings.gain_threshold)
-                if index in started:
-                    pending = started.pop(index)
-                    if pending is None:
-                        split = None
-                    elif may_pass:
-                        split = _finish_split(pending, draft, settings, others)
+    enqueue([0])
+    while waiting:
+        index = waiting.pop()
+        draft = drafts[index]
+        others = _others(index, leaf_volumes)
+        if index in splits:
+            split = splits.pop(index)
+        else:
+            may_pass = _may_pass(draft, others, settings.gain_threshold)
+            split = _best_split(pts, draft, settings, fit_parts=may_pass, others=others, pool=pool)
+        if split is None:
+            draft.stop_reason = 'no_cut'
+            continue
+        gain = _record_gain(draft, split, others)
+        kept = [len(part) >= settings.min_points for part in split.parts]
+        if not gain < settings.gain_threshold:
+            draft.stop_reason = 'gain'
+            if settings.order == 'gain':
+                # Best first: every other waiting split gains less, so each is refused too.
+                while waiting:
+                    other = waiting.pop()
+                    other_split = splits[other]
+                    if other_split is None:
+                        drafts[other].stop_reason = 'no_cut'
                     else:
-                        pending.cancel()
-                        split = _best_split(pts, draft, settings, fit_parts=False)
-                else:
-                    split = _best_split(
-                        pts, draft, settings, fit_parts=may_pass, others=others, pool=pool
-                    )
-            if split is None:
-                draft.stop_reason = 'no_cut'
-                continue
-            gain = _record_gain(draft, split, others)
-            kept = [len(part) >= settings.min_points for part in split.parts]
-            if not gain < settings.gain_threshold:
-                draft.stop_reason = 'gain'
-                if settings.order == 'gain':
-                    # Best first: every other waiting split gains less, so each is refused too.
-                    while waiting:
-                        other = waiting.pop()
-                        other_split = splits[other]
-                        if other_split is None:
-                            drafts[other].stop_reason = 'no_cut'
-                        else:
-                            _record_gain(drafts[other], other_split, _others(other, leaf_volumes))
-                            drafts[other].stop_reason = 'gain'
-                continue
-            if not any(kept):
-                draft.stop_reason = 'noise'
-                continue
-            assert split.boxes is not None, 'a split that passes eq. 2 has fitted parts'
-            if any(
-                keep and float(np.min(box.extents)) < settings.min_thickness
-                for keep, box in zip(kept, split.boxes, strict=True)
-            ):
-                draft.stop_reason = 'thin'
-                continue
-            leaves_after = len(leaf_volumes) - 1 + sum(kept)
-            if settings.max_boxes is not None and leaves_after > settings.max_boxes:
-                draft.stop_reason = 'max_boxes'
-                continue
-            draft.cut = split.cut
-            del leaf_volumes[index]
-            children = []
-            for part, box, keep in zip(split.parts, split.boxes, kept, strict=True):
-                child = _Draft(box=box, point_indices=part, parent=index, depth=draft.depth + 1)
-                children.append(len(drafts))
-                drafts.append(child)
-                if keep:
-                    leaf_volumes[children[-1]] = box.volume
-                else:
-                    child.dropped = True
-                    child.stop_reason = 'dropped'
-            draft.children = tuple(children)
-            enqueue([i for i in children if i in leaf_volumes])
-    finally:
-        for pending in started.values():
-            if pending is not None:
-                pending.cancel()  # the fits of boxes an error left waiting
+                        _record_gain(drafts[other], other_split, _others(other, leaf_volumes))
+                        drafts[other].stop_reason = 'gain'
+            continue
+        if not any(kept):
+            draft.stop_reason = 'noise'
+            continue
+        assert split.boxes is not None, 'a split that passes eq. 2 has fitted parts'
+        if any(
+            keep and float(np.min(box.extents)) < settings.min_thickness
+            for keep, box in zip(kept, split.boxes, strict=True)
+        ):
+            draft.stop_reason = 'thin'
+            continue
+        leaves_after = len(leaf_volumes) - 1 + sum(kept)
+        if settings.max_boxes is not None and leaves_after > settings.max_boxes:
+            draft.stop_reason = 'max_boxes'
+            continue
+        draft.cut = split.cut
+        del leaf_volumes[index]
+        children = []
+        for part, box, keep in zip(split.parts, split.boxes, kept, strict=True):
+            child = _Draft(box=box, point_indices=part, parent=index, depth=draft.depth + 1)
+            children.append(len(drafts))
+            drafts.append(child)
+            if keep:
+                leaf_volumes[children[-1]] = box.volume
+            else:
+                child.dropped = True
+                child.stop_reason = 'dropped'
+        draft.children = tuple(children)
+        enqueue([i for i in children if i in leaf_volumes])
     return _finish(pts, drafts, settings)
 
 
