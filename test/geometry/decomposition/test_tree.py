@@ -586,12 +586,18 @@ def test_bunny_decomposes_and_more_boxes_at_higher_threshold():
     points=blocks(),
     threshold=st.sampled_from([0.9, 0.94, 0.98]),
     cuts=st.integers(0, 4),
-    order=st.sampled_from(['volume', 'gain', 'depth']),
+    order=st.sampled_from(['volume', 'gain', 'depth', 'breadth']),
+    max_boxes=st.sampled_from([None, 2, 3]),
 )
-def test_the_fits_spread_over_workers_change_nothing(points, threshold, cuts, order):
+def test_the_fits_spread_over_workers_change_nothing(points, threshold, cuts, order, max_boxes):
     from mvbb_ros.common.workers import workers
 
-    options = {'gain_threshold': threshold, 'rescore_cuts': cuts, 'order': order}
+    options = {
+        'gain_threshold': threshold,
+        'rescore_cuts': cuts,
+        'order': order,
+        'max_boxes': max_boxes,
+    }
     alone = mvbb_ros.decompose(points, **options)
     for count in (2, 3):
         spread = mvbb_ros.decompose(points, pool=workers(count), **options)
