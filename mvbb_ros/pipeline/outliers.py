@@ -174,6 +174,16 @@ def _box_distance(x: Any, y: Any, z: Any, lower: Any, upper: Any, node: Any) -> 
     return (dx * dx + dy * dy) + dz * dz
 
 
+@njit(inline='always')
+def _insert(best: Any, at: Any, value: Any) -> None:
+    """Put `value` into the ascending ``best[1:at + 1]``, dropping ``best[at]``."""
+    # best[0] is -inf: the shift stops there without an index test.
+    while best[at - np.uint64(1)] > value:
+        best[at] = best[at - np.uint64(1)]
+        at -= np.uint64(1)
+    best[at] = value
+
+
 @njit
 def _query(
     tree_points: Any,
@@ -227,11 +237,7 @@ def _query(
                     at = np.uint64(k)
                 else:
                     continue
-                # best[0] is -inf: the shift stops there without an index test.
-                while best[at - np.uint64(1)] > squared:
-                    best[at] = best[at - np.uint64(1)]
-                    at -= np.uint64(1)
-                best[at] = squared
+                _insert(best, at, squared)
                 if filled == k:
                     worst = best[k]
             continue
@@ -263,17 +269,17 @@ def _leaf_candidates(
     ends: Any,
     first_leaf: Any,
     leaf: Any,
-    reach: Any,
+    reach_squared: Any,
     stack: Any,
     xs: Any,
     ys: Any,
     zs: Any,
 ) -> Any:
     """
-    Copy into `xs`, `ys`, `zs` every point within `reach` (squared) of a leaf's box.
+    Copy into `xs`, `ys`, `zs` every point within the root of `reach_squared` of a leaf's box.
 
     The leaves whose boxes are farther are skipped whole. Every point left out is farther than
-    `reach` from every point of the leaf, in floating point too: a rounded difference grows with
+    that from every point of the leaf, in floating point too: a rounded difference grows with
     its operands, so a point's distance to a point of the box is at least its distance to the
     box. :return: how many points were copied.
     """
@@ -286,7 +292,7 @@ def _leaf_candidates(
         dx = max(lower[node, 0] - upper[leaf, 0], 0.0, lower[leaf, 0] - upper[node, 0])
         dy = max(lower[node, 1] - upper[leaf, 1], 0.0, lower[leaf, 1] - upper[node, 1])
         dz = max(lower[node, 2] - upper[leaf, 2], 0.0, lower[leaf, 2] - upper[node, 2])
-        if (dx * dx + dy * dy) + dz * dz > reach:
+        if (dx * dx + dy * dy) + dz * dz > reach_squared:
             continue
         if node < first_leaf:
             top += 1
@@ -299,8 +305,9 @@ def _leaf_candidates(
             dx = max(lower[leaf, 0] - x, 0.0, x - upper[leaf, 0])
             dy = max(lower[leaf, 1] - y, 0.0, y - upper[leaf, 1])
             dz = max(lower[leaf, 2] - z, 0.0, z - upper[leaf, 2])
+            # Written always, kept when near (no branch on the distance).
             xs[copied], ys[copied], zs[copied] = x, y, z
-            copied += (dx * dx + dy * dy) + dz * dz <= reach  # written always, kept when near
+            copied += (dx * dx + dy * dy) + dz * dz <= reach_squared
     return copied
 
 
@@ -352,17 +359,17 @@ def _fill(
     zs = np.empty(count, dtype=np.float64)
     squared = np.empty(count, dtype=np.float64)
     chosen = np.empty(count, dtype=np.float64)
-    reach = np.inf  # squared; none before the range's first leaf
+    reach_squared = np.inf  # none before the range's first leaf
     previous_x = previous_y = previous_z = 0.0
     radius = -1.0  # the previous point's k-th distance (none yet)
     for leaf in range(first_leaf + begin, first_leaf + end):
         if ends[leaf] <= starts[leaf]:
             continue
         candidates = 0
-        if reach < np.inf:
+        if reach_squared < np.inf:
             candidates = _leaf_candidates(
-                tree_points, lower, upper, starts, ends, first_leaf, leaf, reach, stack, xs, ys,
-                zs,
+                tree_points, lower, upper, starts, ends, first_leaf, leaf, reach_squared, stack,
+                xs, ys, zs,
             )  # fmt: skip
         widest = 0.0  # the leaf's largest k-th distance, squared
         for i in range(starts[leaf], ends[leaf]):
@@ -378,11 +385,12 @@ def _fill(
                 squared[j] = (dx * dx + dy * dy) + dz * dz
             taken = 0
             if radius >= 0.0:
-                taken = _within(squared, candidates, min(reach, FIRST_GUESS * radius**2), chosen)
+                guess = min(reach_squared, FIRST_GUESS * radius**2)
+                taken = _within(squared, candidates, guess, chosen)
                 if taken < k:
-                    taken = _within(squared, candidates, min(reach, chained), chosen)
+                    taken = _within(squared, candidates, min(reach_squared, chained), chosen)
             if taken < k and candidates > 0:
-                taken = _within(squared, candidates, reach, chosen)
+                taken = _within(squared, candidates, reach_squared, chosen)
             if taken >= k:
                 # The k smallest of the chosen are the k nearest: every point left out is
                 # farther than the reach, and the chosen are within it.
@@ -396,10 +404,7 @@ def _fill(
                         at = np.uint64(k)
                     else:
                         continue
-                    while best[at - np.uint64(1)] > value:
-                        best[at] = best[at - np.uint64(1)]
-                        at -= np.uint64(1)
-                    best[at] = value
+                    _insert(best, at, value)
             else:
                 found = _query(
                     tree_points, lower, upper, starts, ends, first_leaf, x, y, z, k, chained,
@@ -417,7 +422,7 @@ def _fill(
             radius = np.sqrt(best[k])
             widest = max(widest, best[k])
             previous_x, previous_y, previous_z = x, y, z
-        reach = widest * LEAF_REACH**2
+        reach_squared = widest * LEAF_REACH**2
 
 
 @njit(
