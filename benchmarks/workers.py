@@ -27,9 +27,9 @@ does not depend on that: it is what is left on one thread, a floor under the wal
 a quiet machine with enough cores approaches, while ``CPU`` over the wall clock says how many
 cores the run kept busy.
 
-Threads: BLAS and OpenMP are held to one thread each (``OMP_NUM_THREADS`` and friends, set
-before numpy loads), so the workers are the only threads that compute. The process keeps the
-CPUs it was given (``taskset`` to choose them).
+Threads: nothing is set for the run; ``process_points`` itself holds OpenBLAS to one thread
+(:mod:`mvbb_ros.common.blas`), so the workers are the only threads that compute, as in the
+node. The process keeps the CPUs it was given (``taskset`` to choose them).
 """
 
 from __future__ import annotations
@@ -46,12 +46,6 @@ import time
 from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 
 SHARED_DATA = shared_data_folder()
-THREAD_VARIABLES = (
-    'OMP_NUM_THREADS',
-    'OPENBLAS_NUM_THREADS',
-    'MKL_NUM_THREADS',
-    'NUMEXPR_NUM_THREADS',
-)
 #: The stage columns, in pipeline order (keys of ``PipelineResult.timings_ms``).
 STAGES = ('scene', 'filter', 'objects', 'completion', 'decompose', 'grasps', 'refine')
 POINTS = 300_000
@@ -106,9 +100,6 @@ def main() -> int:
     parser.add_argument('--only', help='only the scans whose name contains this text')
     args = parser.parse_args()
     counts = [int(word) for word in args.workers.split(',')]
-    for name in THREAD_VARIABLES:
-        os.environ[name] = '1'
-
     from mvbb_ros.pipeline.process import process_points
     from mvbb_ros.pipeline.settings import PipelineSettings
     import numpy as np

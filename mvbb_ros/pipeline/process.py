@@ -17,6 +17,7 @@ import time
 from typing import Any
 
 from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray
+from mvbb_ros.common.blas import one_blas_thread
 from mvbb_ros.common.workers import Task, workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.decomposition.tree import decompose
@@ -235,7 +236,22 @@ def process_points(
         and scores within ``grasp_hysteresis`` of the best (``docs/grasp_rules.md``).
     :return: the result; empty with a `warning` when the points cannot be one object in
         metres (:func:`implausible_extent`) or too few points remain.
+
+    OpenBLAS runs on one thread meanwhile (:mod:`mvbb_ros.common.blas`): the workers are the
+    pipeline's threads.
     """
+    with one_blas_thread():
+        return _process_points(points, settings, timings_ms, decoded, previous)
+
+
+def _process_points(
+    points: ArrayLike,
+    settings: PipelineSettings | None,
+    timings_ms: dict[str, float] | None,
+    decoded: Decoded | None,
+    previous: Grasp | None,
+) -> PipelineResult:
+    """:func:`process_points` itself (OpenBLAS already on one thread)."""
     settings = settings if settings is not None else PipelineSettings()
     count = settings.execution.workers
     pool = None if count == 1 else workers(count)
