@@ -13,10 +13,12 @@ rules: ``docs/grasp_rules.md``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 import math
 
 from mvbb_ros.arrays import FloatArray
-from mvbb_ros.common.workers import split_rows, Workers
+from mvbb_ros.common.workers import gather, split_rows, Workers
 from mvbb_ros.geometry.grasping.refinement_settings import GraspView, RefinementSettings
 from mvbb_ros.geometry.grasping.surface import surface_model, SurfaceModel
 import numba as nb
@@ -646,6 +648,40 @@ def evaluate_lines(
         None for the calling thread alone.
     :return: (C, :data:`EVALUATION_COLUMNS`) rows (columns ``COL_*``; invalid rows are 0).
     """
+    return start_lines(
+        model,
+        origins,
+        approaches,
+        closings,
+        settings,
+        view,
+        lenient=lenient,
+        held=held,
+        valid_only=valid_only,
+        pool=pool,
+    )()
+
+
+def start_lines(
+    model: SurfaceModel,
+    origins: FloatArray,
+    approaches: FloatArray,
+    closings: FloatArray,
+    settings: RefinementSettings,
+    view: GraspView,
+    *,
+    lenient: bool = False,
+    held: bool = False,
+    valid_only: bool = False,
+    pool: Workers | None = None,
+) -> Callable[[], FloatArray]:
+    """
+    Start :func:`evaluate_lines` (the same arguments) on the pool's helpers; return its finish.
+
+    The slices of the lines are queued for the helpers at once and the calling thread is free
+    until it calls the returned function, which takes the slices no helper has started and
+    returns the rows. Without helpers nothing starts: the returned function evaluates them all.
+    """
     depths = settings.finger_depth * np.array(settings.depth_fractions, dtype=np.float64)
     up = np.zeros(3) if view.up is None else np.asarray(view.up, dtype=np.float64)
     params = _parameters(settings, view, model.cell, model.floor, lenient, held, valid_only)
@@ -668,19 +704,10 @@ def evaluate_lines(
 
     parts = split_rows(pool, len(origin_rows))
     if pool is None or len(parts) == 1:
-        return _evaluate(
-            model.points,
-            model.normals,
-            model.weights,
-            origin_rows,
-            approach_rows,
-            closing_rows,
-            depths,
-            params,
-            up,
-        )
+        return lambda: rows(slice(0, len(origin_rows)))
     # Each row depends on its own line only: slices of the lines give the same rows.
-    return np.concatenate(pool.spread(rows, parts))
+    tasks = [pool.submit(partial(rows, part)) for part in parts]
+    return lambda: np.concatenate(gather(tasks))
 
 
 def warm_up() -> None:

@@ -18,7 +18,7 @@ on the new points, for the hysteresis of :func:`refine_grasps`. The rules:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 import math
 
@@ -27,6 +27,7 @@ from mvbb_ros.common.workers import Workers
 from mvbb_ros.geometry.box import Box
 from mvbb_ros.geometry.grasping.candidates import (
     _box_candidates,
+    _Candidates,
     _faces_and_rolls,
     _feasible,
     _seed_candidates,
@@ -41,6 +42,7 @@ from mvbb_ros.geometry.grasping.contacts import (
     COL_WIDTH,
     evaluate_lines,
     EVALUATION_COLUMNS,
+    start_lines,
 )
 from mvbb_ros.geometry.grasping.hypotheses import Grasp, gripper_quaternions
 from mvbb_ros.geometry.grasping.ranking import _pruned_ranking, _ranking, _same
@@ -118,6 +120,39 @@ def _grasps(
             )
         )
     ]
+
+
+@dataclass
+class _Lines:
+    """Candidate lines that :func:`_feasible` kept, with their box and the object they check."""
+
+    origins: FloatArray
+    approaches: FloatArray
+    closings: FloatArray
+    box_index: IndexArray
+    objects: IndexArray
+
+    def per_object(self, models: Sequence[SurfaceModel]) -> list[tuple[IndexArray, SurfaceModel]]:
+        """Return, per object with lines, the lines' indices and the object's surface."""
+        numbered = ((np.flatnonzero(self.objects == n), model) for n, model in enumerate(models))
+        return [(mine, model) for mine, model in numbered if len(mine)]
+
+    def lines(self, mine: IndexArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return the origins, approaches and closing directions of the lines `mine`."""
+        return self.origins[mine], self.approaches[mine], self.closings[mine]
+
+
+def _feasible_lines(
+    candidates: _Candidates,
+    objects_of_boxes: IndexArray,
+    models: Sequence[SurfaceModel],
+    view: GraspView,
+) -> _Lines:
+    """Return the candidates whose approach :func:`_feasible` allows."""
+    origins, approaches, closings, box_index = candidates.arrays()
+    objects = objects_of_boxes[box_index]
+    keep = _feasible(approaches, objects, models, view)
+    return _Lines(origins[keep], approaches[keep], closings[keep], box_index[keep], objects[keep])
 
 
 def _holding_boxes(
@@ -249,7 +284,7 @@ def rescore_grasp(
 
 
 def refine_grasps(
-    seeds: Sequence[Grasp],
+    seeds: Sequence[Grasp] | Callable[[], Sequence[Grasp]],
     boxes: Sequence[Box],
     box_objects: Sequence[int],
     models: Sequence[SurfaceModel],
@@ -262,7 +297,8 @@ def refine_grasps(
     """
     Return grasps checked and scored on the points, best first (the rules: docs/grasp_rules.md).
 
-    :param seeds: the paper's hypotheses on `boxes` (:func:`grasp_hypotheses`).
+    :param seeds: the paper's hypotheses on `boxes` (:func:`grasp_hypotheses`), or a function
+        that makes them: it is called while the pool's helpers check the boxes' own lines.
     :param boxes: every object's leaf boxes (the seeds' ``box_index`` indexes them).
     :param box_objects: the object (index into `models`) of each box.
     :param models: each object's surface (:func:`surface_model`).
@@ -285,23 +321,37 @@ def refine_grasps(
             norm = float(np.linalg.norm(sight))
             sight = sight / norm if norm > 0.0 else None
         views.append(sight)
-    candidates = _seed_candidates(seeds, boxes, settings.pad_size)
-    generated = _box_candidates(boxes, view.up, views, settings.pad_size)
-    for name in ('origins', 'approaches', 'closings', 'boxes'):
-        getattr(candidates, name).extend(getattr(generated, name))
-    origins, approaches, closings, box_index = candidates.arrays()
+    # The boxes' own lines first: their check starts on the helpers while the seeds are made.
+    generated = _feasible_lines(
+        _box_candidates(boxes, view.up, views, settings.pad_size), objects_of_boxes, models, view
+    )
+    started = [
+        (mine, start_lines(model, *generated.lines(mine), settings, view, pool=pool))
+        for mine, model in generated.per_object(models)
+    ]
+    if callable(seeds):
+        seeds = seeds()
+    own = _feasible_lines(
+        _seed_candidates(seeds, boxes, settings.pad_size), objects_of_boxes, models, view
+    )
+    seed_rows = np.zeros((len(own.origins), EVALUATION_COLUMNS))
+    for mine, model in own.per_object(models):
+        seed_rows[mine] = evaluate_lines(model, *own.lines(mine), settings, view, pool=pool)
+    box_rows = np.zeros((len(generated.origins), EVALUATION_COLUMNS))
+    for mine, finish in started:
+        box_rows[mine] = finish()
+    # The seeds' lines, then the boxes' (the order ties are broken in).
+    origins = np.concatenate([own.origins, generated.origins])
+    approaches = np.concatenate([own.approaches, generated.approaches])
+    closings = np.concatenate([own.closings, generated.closings])
+    box_index = np.concatenate([own.box_index, generated.box_index])
     objects = objects_of_boxes[box_index]
-    keep = _feasible(approaches, objects, models, view)
-    origins, approaches, closings = origins[keep], approaches[keep], closings[keep]
-    box_index, objects = box_index[keep], objects[keep]
-    rows = np.zeros((len(origins), EVALUATION_COLUMNS))
+    rows = np.concatenate([seed_rows, box_rows])
     for number, model in enumerate(models):
         mine = np.flatnonzero(objects == number)
-        if len(mine):
+        if len(mine) and not np.any(rows[mine, COL_VALID] > 0.0) and settings.finger_length > 0.0:
             lines = (origins[mine], approaches[mine], closings[mine])
-            rows[mine] = evaluate_lines(model, *lines, settings, view, pool=pool)
-            if not np.any(rows[mine, COL_VALID] > 0.0) and settings.finger_length > 0.0:
-                rows[mine] = evaluate_lines(model, *lines, settings, view, lenient=True, pool=pool)
+            rows[mine] = evaluate_lines(model, *lines, settings, view, lenient=True, pool=pool)
     valid = np.flatnonzero(rows[:, COL_VALID] > 0.0)
     # Where each valid grasp closes, and the box of its object that holds that point.
     closes = (

@@ -328,3 +328,52 @@ def test_a_bounded_grasp_list_is_the_head_of_the_whole_list(seed, count, limit):
             patch.setattr(ranking, 'PRUNE_GROWTH', growth)
             bounded = process_points(points, PipelineSettings().updated({'max_grasps': limit}))
         assert _grasp_rows(bounded) == _grasp_rows(whole)[:limit]
+
+
+@pytest.mark.parametrize('count', [1, 2])
+def test_seeds_made_while_the_boxes_lines_are_checked_give_the_same_grasps(count):
+    """The hypotheses may be made by a function called meanwhile: the grasps are the same."""
+    from mvbb_ros.common.workers import workers
+    from mvbb_ros.geometry.decomposition.tree import decompose
+
+    points = l_shape_points(seed=3)
+    decomposition = decompose(points, gain_threshold=0.94)
+    seeds = grasp_hypotheses(decomposition, gripper_max_width=0.14)
+    view = GraspView(
+        gripper_max_width=0.14,
+        standoff=0.05,
+        up=np.array([0.0, 0.0, 1.0]),
+        support_clearance=0.005,
+    )
+    model = surface_model(points, cell=CELL, up=(0.0, 0.0, 1.0))
+    leaves = decomposition.leaves
+    ours = [0] * len(leaves)
+    given = refine_grasps(seeds, leaves, ours, [model], ON, view)
+    calls = []
+
+    def made():
+        calls.append(1)
+        return seeds
+
+    pool = None if count == 1 else workers(count)
+    later = refine_grasps(made, leaves, ours, [model], ON, view, pool=pool)
+    assert calls == [1]
+    assert given.grasps and _grasp_rows(later) == _grasp_rows(given)
+    assert (later.candidates, later.holding) == (given.candidates, given.holding)
+
+
+def test_lines_started_on_the_helpers_give_the_rows_of_the_lines_checked_at_once():
+    from mvbb_ros.common.workers import workers
+    from mvbb_ros.geometry.grasping.contacts import start_lines
+
+    model = surface_model(l_shape_points(seed=5), cell=CELL, up=(0.0, 0.0, 1.0))
+    rng = np.random.default_rng(5)
+    approaches = Rotation.random(300, random_state=5).as_matrix()
+    origins = model.center + rng.normal(0.0, 0.03, (300, 3))
+    lines = (origins, approaches[:, :, 2], approaches[:, :, 0])
+    view = GraspView(gripper_max_width=0.14, standoff=0.05, up=np.array([0.0, 0.0, 1.0]))
+    at_once = evaluate_lines(model, *lines, ON, view)
+    assert at_once[:, COL_VALID].any()
+    for pool in (None, workers(2), workers(3)):
+        finish = start_lines(model, *lines, ON, view, pool=pool)
+        assert np.array_equal(finish(), at_once)
