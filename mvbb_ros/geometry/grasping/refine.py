@@ -345,7 +345,7 @@ def refine_grasps(
     approaches = np.concatenate([own.approaches, generated.approaches])
     closings = np.concatenate([own.closings, generated.closings])
     box_index = np.concatenate([own.box_index, generated.box_index])
-    objects = objects_of_boxes[box_index]
+    objects = np.concatenate([own.objects, generated.objects])
     rows = np.concatenate([seed_rows, box_rows])
     for number, model in enumerate(models):
         mine = np.flatnonzero(objects == number)
