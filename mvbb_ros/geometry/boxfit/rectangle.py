@@ -198,29 +198,47 @@ def calipers_kernel(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int
     :return: the area and the unit direction (dx, dy) of the rectangle side flush with a polygon
         edge. One vertex gives area 0 and (1, 0); two give area 0 along their segment.
     """
-    return calipers_into(x, y, polygon, size, np.empty((4, max(size, 1))))
+    rows = max(size, 1) + 1
+    return calipers_into(
+        x, y, polygon, size, np.empty((4, rows)), np.empty((3, rows), dtype=np.uint64)
+    )
 
 
-@nb.njit
-def calipers_into(
+@nb.njit(inline='always')
+def _walk_on(
+    position: int,
+    ex: float,
+    ey: float,
+    edge_x: np.ndarray,
+    edge_y: np.ndarray,
+    size: int,
+    side: int,
+) -> int:
+    """
+    Move a supporting vertex forward while its next edge points `side` of the edge (ex, ey).
+
+    `side` 0: along the edge (the vertex farthest along it), 1: to its left (farthest from it),
+    2: against it (farthest back). At most `size` steps (a polygon that is not convex).
+    """
+    last = size - 1
+    for _ in range(size):
+        if side == 0:
+            onward = ex * edge_x[position] + ey * edge_y[position] > 0.0
+        elif side == 1:
+            onward = ex * edge_y[position] - ey * edge_x[position] > 0.0
+        else:
+            onward = ex * edge_x[position] + ey * edge_y[position] < 0.0
+        if not onward:
+            break
+        position = position + 1 if position < last else 0
+    return position
+
+
+@nb.njit(inline='always')
+def _polygon_edges(
     x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int, scratch: np.ndarray
-) -> tuple:
-    """
-    Run :func:`calipers_kernel` with a caller's scratch array, (4, >= size) floats.
-
-    For callers that run the calipers hundreds of times a fit (no allocation per call).
-    """
-    if size < 2:
-        return 0.0, 1.0, 0.0
-    if size == 2:
-        dx = x[polygon[1]] - x[polygon[0]]
-        dy = y[polygon[1]] - y[polygon[0]]
-        length = math.hypot(dx, dy)
-        if not length > 0.0:
-            return 0.0, 1.0, 0.0
-        return 0.0, dx / length, dy / length
-    # The polygon's corners and edge vectors in contiguous arrays: the pointers below step
-    # through them without going through `polygon` (the same differences, so the same result).
+) -> None:
+    """Copy the corners to ``scratch[0:2]`` and their edges (to the next corner) to ``scratch[2:4]``."""
     corner_x = scratch[0]
     corner_y = scratch[1]
     edge_x = scratch[2]
@@ -234,10 +252,36 @@ def calipers_into(
         edge_y[i] = corner_y[i + 1] - corner_y[i]
     edge_x[last] = corner_x[0] - corner_x[last]
     edge_y[last] = corner_y[0] - corner_y[last]
+
+
+@nb.njit
+def _short(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int) -> tuple:
+    """The calipers' answer for fewer than three vertices (a point or a segment)."""
+    if size < 2:
+        return 0.0, 1.0, 0.0
+    dx = x[polygon[1]] - x[polygon[0]]
+    dy = y[polygon[1]] - y[polygon[0]]
+    length = math.hypot(dx, dy)
+    if not length > 0.0:
+        return 0.0, 1.0, 0.0
+    return 0.0, dx / length, dy / length
+
+
+@nb.njit(inline='always')
+def _least_rectangle(scratch: np.ndarray, size: int, places: np.ndarray, walking: bool) -> tuple:
+    """
+    Return the least rectangle over the edges, from their supporting vertices.
+
+    With `walking`, the vertices are found here, edge by edge (the calipers' walk); else they
+    are ``places[0:3, i]`` (farthest along edge i, from it, back).
+    """
+    corner_x = scratch[0]
+    corner_y = scratch[1]
+    edge_x = scratch[2]
+    edge_y = scratch[3]
     best = np.inf
     best_x = 1.0
     best_y = 0.0
-    # Supporting vertices as positions in the polygon, moved forward (with wrap-around) only.
     right = 1
     top = 1
     left = 1
@@ -247,26 +291,15 @@ def calipers_into(
         squared = ex * ex + ey * ey
         if not squared > 0.0:
             continue
-        # Farthest along the edge, then farthest from it, then farthest back.
-        for _ in range(size):
-            if ex * edge_x[right] + ey * edge_y[right] > 0.0:
-                right = right + 1 if right < last else 0
-            else:
-                break
-        if i == 0:
-            top = right
-        for _ in range(size):
-            if ex * edge_y[top] - ey * edge_x[top] > 0.0:
-                top = top + 1 if top < last else 0
-            else:
-                break
-        if i == 0:
-            left = top
-        for _ in range(size):
-            if ex * edge_x[left] + ey * edge_y[left] < 0.0:
-                left = left + 1 if left < last else 0
-            else:
-                break
+        if walking:
+            # Farthest along the edge, then farthest from it, then farthest back.
+            right = _walk_on(right, ex, ey, edge_x, edge_y, size, 0)
+            top = _walk_on(right if i == 0 else top, ex, ey, edge_x, edge_y, size, 1)
+            left = _walk_on(top if i == 0 else left, ex, ey, edge_x, edge_y, size, 2)
+        else:
+            right = np.int64(places[0, i])
+            top = np.int64(places[1, i])
+            left = np.int64(places[2, i])
         along = ex * (corner_x[right] - corner_x[left]) + ey * (corner_y[right] - corner_y[left])
         across = ex * (corner_y[top] - corner_y[i]) - ey * (corner_x[top] - corner_x[i])
         area = along * across
@@ -279,6 +312,84 @@ def calipers_into(
         return 0.0, 1.0, 0.0
     length = math.hypot(best_x, best_y)
     return max(best, 0.0), best_x / length, best_y / length
+
+
+@nb.njit
+def calipers_into(
+    x: np.ndarray,
+    y: np.ndarray,
+    polygon: np.ndarray,
+    size: int,
+    scratch: np.ndarray,
+    places: np.ndarray,
+) -> tuple:
+    """
+    Run :func:`calipers_kernel` with a caller's work arrays (no allocation per call).
+
+    For callers that run the calipers hundreds of times a fit. The three supporting vertices
+    walk forward edge after edge; where each stops depends on the polygon, so a walk written
+    with branches mispredicts at almost every edge (about half the time of a box search's
+    turn on a 20-vertex outline). Here the first edge's vertices walk as usual, and for the
+    other edges each vertex follows a merge without branches: at each step either the vertex
+    moves on (the walk's test passes) or the edge does and the vertex's place is kept. The
+    tests are the walk's, in its order, so the rectangle is the same bit for bit. The merges
+    stop after ``4 * size`` steps (a convex polygon needs fewer than ``3 * size``): a polygon
+    on which a vertex's test would pass all the way round is walked instead.
+
+    :param scratch: (4, >= size + 1) floats: the corners and edges.
+    :param places: (3, >= size + 1) unsigned integers: each edge's supporting vertices.
+    """
+    if size < 3:
+        return _short(x, y, polygon, size)
+    _polygon_edges(x, y, polygon, size, scratch)
+    edge_x = scratch[2]
+    edge_y = scratch[3]
+    ex = edge_x[0]
+    ey = edge_y[0]
+    if not ex * ex + ey * ey > 0.0:
+        return _least_rectangle(scratch, size, places, True)
+    right = _walk_on(1, ex, ey, edge_x, edge_y, size, 0)
+    top = _walk_on(right, ex, ey, edge_x, edge_y, size, 1)
+    left = _walk_on(top, ex, ey, edge_x, edge_y, size, 2)
+    # A zero edge after the last, on which no test passes: a finished merge stays on it.
+    edge_x[size] = 0.0
+    edge_y[size] = 0.0
+    # Unsigned positions: no code for negative indices on the merges' critical path.
+    end = np.uint64(size)
+    zero = np.uint64(0)
+    one = np.uint64(1)
+    at_right = np.uint64(right)
+    at_top = np.uint64(top)
+    at_left = np.uint64(left)
+    places[0, 0] = at_right
+    places[1, 0] = at_top
+    places[2, 0] = at_left
+    edge_right = edge_top = edge_left = one
+    for _ in range(4 * size):
+        if edge_right >= end and edge_top >= end and edge_left >= end:
+            break
+        moves_right = (
+            edge_x[edge_right] * edge_x[at_right] + edge_y[edge_right] * edge_y[at_right] > 0.0
+        )
+        moves_top = edge_x[edge_top] * edge_y[at_top] - edge_y[edge_top] * edge_x[at_top] > 0.0
+        moves_left = (
+            edge_x[edge_left] * edge_x[at_left] + edge_y[edge_left] * edge_y[at_left] < 0.0
+        )
+        places[0, edge_right] = at_right
+        places[1, edge_top] = at_top
+        places[2, edge_left] = at_left
+        at_right += np.uint64(moves_right)
+        at_top += np.uint64(moves_top)
+        at_left += np.uint64(moves_left)
+        at_right = zero if at_right == end else at_right
+        at_top = zero if at_top == end else at_top
+        at_left = zero if at_left == end else at_left
+        edge_right = min(edge_right + np.uint64(not moves_right), end)
+        edge_top = min(edge_top + np.uint64(not moves_top), end)
+        edge_left = min(edge_left + np.uint64(not moves_left), end)
+    else:
+        return _least_rectangle(scratch, size, places, True)
+    return _least_rectangle(scratch, size, places, False)
 
 
 @nb.njit(cache=True, nogil=True)

@@ -769,7 +769,7 @@ def pivot_thinnest(vertices: np.ndarray, work: tuple, frame: np.ndarray, volume:
     :return: the volume and frame (3, 3) of the smallest box found (the input when none is
         smaller by :data:`POLISH_TOLERANCE`).
     """
-    edges = work[9]  # new_work's layout: the hull's (E, 2) edges
+    edges = work[10]  # new_work's layout: the hull's (E, 2) edges
     count = vertices.shape[0]
     low = np.full(3, np.inf)
     high = np.full(3, -np.inf)

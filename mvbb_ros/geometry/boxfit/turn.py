@@ -137,9 +137,9 @@ def rotate_about(
         side and their cross product.
     :return: the box volume (of the hull vertices).
     """
-    following, silhouette, px, py, order, polygon, scratch = work[:7]
-    side, normals, edges, edge_facets = work[7:11]
-    cell_start, edge_vertices, edge_normals, cell_centres, cell_limits = work[11:]
+    following, silhouette, px, py, order, polygon, scratch, places = work[:8]
+    side, normals, edges, edge_facets = work[8:12]
+    cell_start, edge_vertices, edge_normals, cell_centres, cell_limits = work[12:]
     count = vertices.shape[0]
     low = np.inf
     high = -np.inf
@@ -216,7 +216,7 @@ def rotate_about(
             py[s] = vx * vertices[s, 0] + vy * vertices[s, 1] + vz * vertices[s, 2]
             order[s] = s
         corners = hull_2d_kernel(px, py, order, size, polygon)
-    area, dx, dy = calipers_into(px, py, polygon, corners, scratch)
+    area, dx, dy = calipers_into(px, py, polygon, corners, scratch, places)
     sx = dx * ux + dy * vx
     sy = dx * uy + dy * vy
     sz = dx * uz + dy * vz
@@ -253,8 +253,8 @@ def new_work(
     a limit of -1 (skipped). A smaller hull has no cells: its facets are classed and every edge
     looked at, as binning would cost more than it saves.
 
-    :return: (following, silhouette, x, y, order, polygon, calipers' scratch, side, normals,
-        edges, edge_facets, cell_start, edge_vertices, edge_normals, cell_centres,
+    :return: (following, silhouette, x, y, order, polygon, calipers' scratch and places, side,
+        normals, edges, edge_facets, cell_start, edge_vertices, edge_normals, cell_centres,
         cell_limits); cell c holds the edges ``cell_start[c]:cell_start[c + 1]`` of
         ``edge_vertices`` and ``edge_normals``.
     """
@@ -266,7 +266,8 @@ def new_work(
         np.empty(vertex_count),
         np.empty(vertex_count, dtype=np.int64),
         np.empty(vertex_count + 1, dtype=np.int64),
-        np.empty((4, max(vertex_count, 1))),
+        np.empty((4, max(vertex_count, 1) + 1)),
+        np.empty((3, max(vertex_count, 1) + 1), dtype=np.uint64),
     )
     edge_count = edges.shape[0]
     if edge_count < BINNED_EDGES_MIN:

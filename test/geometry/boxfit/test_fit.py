@@ -386,7 +386,7 @@ def test_the_silhouette_gives_the_outline_of_the_shadow(seed):
 def _unbinned_work(vertices, found):
     """Return rotate_about's work for a hull with its edges not binned (every edge looked at)."""
     work = turn.new_work(vertices, found.normals, found.edges, found.edge_facets)
-    return work[:7] + (
+    return work[:8] + (
         np.zeros(len(found.normals), dtype=np.bool_),
         found.normals,
         found.edges,
@@ -422,7 +422,7 @@ def test_property_a_binned_hulls_turn_is_that_of_every_edge_looked_at(seed, flat
     edge_on = np.cross(found.normals[picked], rng.normal(size=(20, 3)))
     axes = np.vstack([rng.normal(size=(20, 3)), edge_on, found.normals[picked]])
     # The cells hold every edge once, with its facets' normals, left then right.
-    cell_start, edge_vertices, edge_normals, centres, limits = binned[11:]
+    cell_start, edge_vertices, edge_normals, centres, limits = binned[12:]
     assert cell_start[-1] == len(found.edges)
     rows = {(a, b): row for row, (a, b) in enumerate(found.edges.tolist())}
     order = [rows[(a, b)] for a, b in edge_vertices.tolist()]

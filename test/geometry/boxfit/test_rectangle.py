@@ -1,5 +1,7 @@
 """The compiled 2D hull and rotating calipers (mvbb_ros.geometry.boxfit.rectangle)."""
 
+import math
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -116,6 +118,96 @@ def test_hull_and_calipers_agree_with_brute_force_on_shuffled_polygons_with_repe
         1.0,
         0.0,
     )
+
+
+def _walked_calipers(x, y, polygon, size):
+    """The rotating calipers as a walk, in Python: each vertex moves on while its test passes."""
+    if size < 2:
+        return 0.0, 1.0, 0.0
+    corners = [(float(x[polygon[i]]), float(y[polygon[i]])) for i in range(size)]
+    if size == 2:
+        dx, dy = corners[1][0] - corners[0][0], corners[1][1] - corners[0][1]
+        length = float(np.hypot(dx, dy))  # the C library's, as the kernel's
+        return (0.0, dx / length, dy / length) if length > 0.0 else (0.0, 1.0, 0.0)
+    edges = [
+        (corners[(i + 1) % size][0] - corners[i][0], corners[(i + 1) % size][1] - corners[i][1])
+        for i in range(size)
+    ]
+    tests = (
+        lambda ex, ey, e: ex * e[0] + ey * e[1] > 0.0,
+        lambda ex, ey, e: ex * e[1] - ey * e[0] > 0.0,
+        lambda ex, ey, e: ex * e[0] + ey * e[1] < 0.0,
+    )
+
+    def walk(position, ex, ey, test):
+        for _ in range(size):
+            if not test(ex, ey, edges[position]):
+                break
+            position = (position + 1) % size
+        return position
+
+    best, best_x, best_y = math.inf, 1.0, 0.0
+    right = top = left = 1
+    for i, (ex, ey) in enumerate(edges):
+        squared = ex * ex + ey * ey
+        if not squared > 0.0:
+            continue
+        right = walk(right, ex, ey, tests[0])
+        top = walk(right if i == 0 else top, ex, ey, tests[1])
+        left = walk(top if i == 0 else left, ex, ey, tests[2])
+        along = ex * (corners[right][0] - corners[left][0]) + ey * (
+            corners[right][1] - corners[left][1]
+        )
+        across = ex * (corners[top][1] - corners[i][1]) - ey * (corners[top][0] - corners[i][0])
+        if along * across < best * squared:
+            best, best_x, best_y = along * across / squared, ex, ey
+    if best == math.inf:
+        return 0.0, 1.0, 0.0
+    length = float(np.hypot(best_x, best_y))
+    return max(best, 0.0), best_x / length, best_y / length
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    count=st.integers(1, 60),
+    shape=st.sampled_from(['hull', 'any', 'clockwise', 'repeats', 'collinear', 'grid']),
+)
+def test_property_calipers_are_the_walk_bit_for_bit(seed, count, shape):
+    """
+    The merges give the walk's rectangle exactly, on any polygon the search can pass.
+
+    Convex outlines (from the 2D hull, from any start, with repeated corners or on an integer
+    grid, whose hulls have exact right angles) and polygons that are not convex: clockwise
+    ones, collinear points, any points in any order (where a walk goes round and the kernel
+    walks instead).
+    """
+    rng = np.random.default_rng(seed)
+    if shape in ('hull', 'grid'):
+        cloud = rng.normal(size=(count + 3, 2)) * rng.uniform(0.01, 3.0, size=2)
+        if shape == 'grid':
+            cloud = np.round(3.0 * cloud)
+        x = np.ascontiguousarray(cloud[:, 0])
+        y = np.ascontiguousarray(cloud[:, 1])
+        found = _hull_2d(cloud)
+        start = int(rng.integers(len(found)))
+        polygon = np.append(np.roll(found, start), found[start])
+        size = len(found)
+    else:
+        angles = np.sort(rng.uniform(0.0, 2.0 * np.pi, count))
+        if shape == 'clockwise':
+            angles = angles[::-1]
+        if shape == 'repeats':
+            angles = np.repeat(angles, rng.integers(1, 3, size=count))
+        x, y = np.cos(angles), rng.uniform(0.1, 2.0) * np.sin(angles)
+        if shape == 'any':
+            x, y = rng.normal(size=count), rng.normal(size=count)
+        if shape == 'collinear':
+            x = rng.normal(size=count)
+            y = 0.5 * x
+        size = len(x)
+        polygon = np.arange(size + 1) % size
+    assert calipers_kernel(x, y, polygon, size) == _walked_calipers(x, y, polygon, size)
 
 
 def test_min_area_rectangle_of_degenerate_planar_points():
