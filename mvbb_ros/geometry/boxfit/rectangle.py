@@ -12,6 +12,8 @@ as the edge turns, so all edges cost O(m) for a hull of m vertices.
   break it: they are dropped.
 * :func:`calipers_kernel`: the rotating calipers on a counter-clockwise convex polygon. Areas are
   compared without square roots (the edge's squared length divides the product of the two spans).
+  After the first edge the supporting vertices move by merges without branches
+  (:func:`calipers_into`): the walk's branches mispredict on every new outline.
 
 :func:`min_area_rectangle` is the typed wrapper for one planar cloud. The 3D box search
 (:mod:`mvbb_ros.geometry.boxfit.search`) calls the kernels directly, on the projected silhouette of
@@ -238,7 +240,7 @@ def _walk_on(
 def _polygon_edges(
     x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int, scratch: np.ndarray
 ) -> None:
-    """Copy the corners to ``scratch[0:2]`` and their edges (to the next corner) to ``scratch[2:4]``."""
+    """Copy the corners to ``scratch[0:2]``, the edges to the next corner to ``scratch[2:4]``."""
     corner_x = scratch[0]
     corner_y = scratch[1]
     edge_x = scratch[2]
@@ -256,7 +258,7 @@ def _polygon_edges(
 
 @nb.njit
 def _short(x: np.ndarray, y: np.ndarray, polygon: np.ndarray, size: int) -> tuple:
-    """The calipers' answer for fewer than three vertices (a point or a segment)."""
+    """Return the calipers' answer for fewer than three vertices (a point or a segment)."""
     if size < 2:
         return 0.0, 1.0, 0.0
     dx = x[polygon[1]] - x[polygon[0]]

@@ -121,7 +121,7 @@ def test_hull_and_calipers_agree_with_brute_force_on_shuffled_polygons_with_repe
 
 
 def _walked_calipers(x, y, polygon, size):
-    """The rotating calipers as a walk, in Python: each vertex moves on while its test passes."""
+    """Walk the rotating calipers in Python: each vertex moves on while its test passes."""
     if size < 2:
         return 0.0, 1.0, 0.0
     corners = [(float(x[polygon[i]]), float(y[polygon[i]])) for i in range(size)]
