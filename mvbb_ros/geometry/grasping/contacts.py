@@ -426,15 +426,26 @@ def _evaluate(
                 u = used_u[j]
                 window[reached] = j
                 reached += (u >= tip - finger) & (u <= tip)
+            # The supports' sums by selects (adding 0.0 leaves a sum as it is): whether a point
+            # lies within the wider support tolerance of a pad is as likely as not, and a branch
+            # on it mispredicts. Few points touch a pad: that stays a branch.
+            support_plus = 0.0
+            support_minus = 0.0
+            support_tolerance = params[P_SUPPORT_TOLERANCE]
+            touch_tolerance = params[P_TOLERANCE]
             for q in range(reached):
                 j = window[q]
                 v = used_v[j]
                 k = used_k[j]
+                gap_plus = pad_high - v
+                gap_minus = v - pad_low
+                weight = weights[k]
+                support_plus += weight if gap_plus <= support_tolerance else 0.0
+                support_minus += weight if gap_minus <= support_tolerance else 0.0
+                if gap_plus > touch_tolerance and gap_minus > touch_tolerance:
+                    continue
                 for side in range(2):
-                    gap = pad_high - v if side == 0 else v - pad_low
-                    if gap <= params[P_SUPPORT_TOLERANCE]:
-                        support[side] += weights[k]
-                    if gap > params[P_TOLERANCE]:
+                    if (gap_plus if side == 0 else gap_minus) > touch_tolerance:
                         continue
                     sign = 1.0 if side == 0 else -1.0
                     facing = normals[k, 0] * c[0] + normals[k, 1] * c[1] + normals[k, 2] * c[2]
@@ -444,6 +455,8 @@ def _evaluate(
                         normal[3 * side + axis] += flip * normals[k, axis] * sign
                     patch[side] += 1.0
                     shallowest[side] = min(shallowest[side], used_u[j])
+            support[0] = support_plus
+            support[1] = support_minus
             for axis in range(6):
                 contact[axis] /= patch[axis // 3]
             # A pad that touches where the object is widest within its reach (nothing just
