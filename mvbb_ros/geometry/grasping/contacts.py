@@ -285,7 +285,6 @@ def _evaluate(
     normal = np.empty(6)
     patch = np.empty(2)
     shallowest = np.empty(2)
-    support = np.empty(2)
     half = params[P_HALF]
     pad = params[P_PAD]
     finger = params[P_LENGTH]
@@ -419,7 +418,6 @@ def _evaluate(
             shallowest[:] = inf
             normal[:] = 0.0
             patch[:] = 0.0
-            support[:] = 0.0
             # The points the pads reach, in band order (so the sums below add in that order).
             reached = 0
             for j in range(used):
@@ -455,8 +453,6 @@ def _evaluate(
                         normal[3 * side + axis] += flip * normals[k, axis] * sign
                     patch[side] += 1.0
                     shallowest[side] = min(shallowest[side], used_u[j])
-            support[0] = support_plus
-            support[1] = support_minus
             for axis in range(6):
                 contact[axis] /= patch[axis // 3]
             # A pad that touches where the object is widest within its reach (nothing just
@@ -543,7 +539,7 @@ def _evaluate(
                 if min(final, before) < params[P_FLOOR] + params[P_SUPPORT_CLEARANCE]:
                     continue
             margin = 1.0 - worst / cone if cone > 0.0 else 0.0
-            held = min(support[0], support[1]) / params[P_EXPECTED]
+            held = min(support_plus, support_minus) / params[P_EXPECTED]
             # Coverage: the share of the object between the fingers (along the approach, up to
             # the fingers' reach) that the pads go down over.
             span = min(bottom - first, finger - params[P_PALM_MARGIN])
