@@ -3,6 +3,7 @@ The scene stage on real table-top frames and on rendered ones: objects found, ta
 
     .venv/bin/python benchmarks/scenes.py                 # the three real scenes, 50 rendered
     .venv/bin/python benchmarks/scenes.py --frames 10     # fewer rendered frames
+    .venv/bin/python benchmarks/scenes.py --view-edge 0:100 --frames 0 --no-real
 
 Real scenes (the shared ``scenes/*.pcd``, organized 640 x 480): each is processed with the
 node's defaults (``support_plane: auto``) and with ``support_plane: none``. Ground truth:
@@ -21,6 +22,14 @@ Rendered scenes (:func:`mvbb_ros.evaluation.synthetic.table_top_frame`: 1 to 5 o
 a wall behind it and the floor; 640 x 480 with the depth camera's noise): objects found against
 objects placed, the table's normal against the truth, and the share of each box's volume above the
 table (sampled; a box with less than 80 % above it reaches into the table).
+
+Objects cut by the view's edge (``--view-edge FIRST:LAST``, :mod:`mvbb_ros.pipeline.view_edge`):
+on the real scenes, each object's gap to the view's outline and whether it is cut, by the
+label most of its points have; on the rendered frames of those seeds, whole
+(:func:`~mvbb_ros.evaluation.synthetic.table_top_frame`) and with the image cut through one
+object (:func:`~mvbb_ros.evaluation.synthetic.cut_table_top_frame`), how many objects of each
+kind are found cut: labelled objects whose pixels come within 3 pixels of the image's border
+("at the border"), the others ("whole"), and objects of the background.
 """
 
 from __future__ import annotations
@@ -32,10 +41,11 @@ import re
 import struct
 import sys
 import time
+from typing import Any
 
 from mvbb_ros.cli.cloud_io import load_cloud
 from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
-from mvbb_ros.evaluation.synthetic import table_top_frame
+from mvbb_ros.evaluation.synthetic import BACKGROUND, cut_table_top_frame, table_top_frame
 from mvbb_ros.pipeline.filtering import filter_points
 from mvbb_ros.pipeline.process import process_points
 from mvbb_ros.pipeline.settings import PipelineSettings
@@ -224,6 +234,81 @@ def rendered_scenes(frames: int) -> None:
     )
 
 
+def object_owners(result: Any, points: np.ndarray, labels: np.ndarray) -> list[int]:
+    """Return the label most of each object's observed points come from."""
+    tree = cKDTree(points)
+    owners = []
+    for item in result.objects:
+        nearest = tree.query(item.shape.points[: item.shape.observed])[1]
+        owners.append(int(np.bincount(labels[nearest] - BACKGROUND).argmax() + BACKGROUND))
+    return owners
+
+
+#: A labelled object whose pixels come this close to the image's border is at the border.
+BORDER_PIXELS = 3
+
+
+def view_edges(first: int, last: int, real: bool) -> None:
+    """Print which objects are cut by the view's edge: real scenes, rendered frames."""
+    settings = PipelineSettings()
+    if real:
+        print("| scene | object: label, gap to the view's outline (deg), cut | top grasp on |")
+        print('|---|---|---|')
+        for name in SCENES:
+            points, labels = scene_truth(name)
+            result = process_points(points, settings)
+            owners = object_owners(result, points, labels)
+            cells = [
+                f'{item.index}: {owner}, {item.view_edge.gap_deg:.2f}, '
+                f'{"cut" if item.cut_by_view else "whole"}'
+                for item, owner in zip(result.objects, owners, strict=True)
+                if item.view_edge is not None
+            ]
+            top = result.grasps[0].object_index if result.grasps else None
+            print(f'| {name} | {"; ".join(cells)} | object {top} |')
+    tally: Counter[tuple[str, str, bool]] = Counter()
+    for seed in range(first, last):
+        count = 1 + seed % 5
+        whole = table_top_frame(seed, count)
+        finite = np.all(np.isfinite(whole.points), axis=-1)
+        ring = np.zeros(whole.labels.shape, dtype=bool)
+        ring[:BORDER_PIXELS] = ring[-BORDER_PIXELS:] = True
+        ring[:, :BORDER_PIXELS] = ring[:, -BORDER_PIXELS:] = True
+        cases = [('whole', whole.points[finite], whole.labels[finite], whole.labels, ring)]
+        points, labels, cut = cut_table_top_frame(seed, count)
+        columns = np.flatnonzero((whole.labels == cut).any(axis=0))
+        middle = (int(columns.min()) + int(columns.max())) // 2
+        kept = slice(middle, None) if seed % 2 else slice(None, middle)
+        cut_ring = np.zeros(whole.labels[:, kept].shape, dtype=bool)
+        cut_ring[:BORDER_PIXELS] = cut_ring[-BORDER_PIXELS:] = True
+        cut_ring[:, :BORDER_PIXELS] = cut_ring[:, -BORDER_PIXELS:] = True
+        cases.append(('cut', points, labels, whole.labels[:, kept], cut_ring))
+        for frame, cloud, cloud_labels, image, border in cases:
+            result = process_points(cloud, settings)
+            if result.support is None:
+                tally[(frame, 'frames without a support plane', False)] += 1
+                continue
+            tally[(frame, 'frames', False)] += 1
+            at_border = set(np.unique(image[border]).tolist())
+            owners = object_owners(result, cloud, cloud_labels)
+            for item, owner in zip(result.objects, owners, strict=True):
+                kind = 'background' if owner == BACKGROUND else 'whole'
+                kind = 'at the border' if owner in at_border - {BACKGROUND} else kind
+                tally[(frame, kind, item.cut_by_view)] += 1
+    print(f'\nrendered frames, seeds {first}-{last - 1}: objects found cut / found')
+    print('| frames | frames with a support | whole objects | at the border | background |')
+    print('|---|---|---|---|---|')
+    for frame in ('whole', 'cut'):
+        cells = [f'{tally[(frame, "frames", False)]}']
+        cells.append(str(tally[(frame, 'frames', False)]))
+        for kind in ('whole', 'at the border', 'background'):
+            found = tally[(frame, kind, True)] + tally[(frame, kind, False)]
+            cells.append(f'{tally[(frame, kind, True)]} of {found}')
+        skipped = tally[(frame, 'frames without a support plane', False)]
+        cells[0] = f'{frame} ({skipped + int(cells[0])})'
+        print('| ' + ' | '.join(cells) + ' |')
+
+
 def plane_fits(repeats: int = 20) -> None:
     """Print the plane fit's time and normal error against Open3D's segment_plane."""
     import subprocess
@@ -275,6 +360,11 @@ def main() -> None:
     parser.add_argument('--frames', type=int, default=50, help='rendered frames (default 50)')
     parser.add_argument('--no-real', action='store_true', help='skip the real scenes')
     parser.add_argument('--fits', action='store_true', help='also time the plane fit')
+    parser.add_argument(
+        '--view-edge',
+        metavar='FIRST:LAST',
+        help="which objects are cut by the view's edge, on rendered seeds FIRST to LAST - 1",
+    )
     args = parser.parse_args()
     if not args.no_real:
         if (reason := missing(SHARED_DATA / 'scenes')) is not None:
@@ -284,6 +374,9 @@ def main() -> None:
         plane_fits()
     if args.frames:
         rendered_scenes(args.frames)
+    if args.view_edge:
+        first, last = (int(value) for value in args.view_edge.split(':'))
+        view_edges(first, last, not args.no_real)
 
 
 if __name__ == '__main__':

@@ -44,6 +44,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     'mvbb_ros.pipeline.plane',
     'mvbb_ros.pipeline.outline',
     'mvbb_ros.pipeline.scene',
+    'mvbb_ros.pipeline.view_edge',
     'mvbb_ros.geometry.boxfit.rectangle',
     'mvbb_ros.geometry.boxfit.hull',
     'mvbb_ros.geometry.boxfit.search',

@@ -49,6 +49,9 @@ def print_report(result: PipelineResult, seconds: float, settings: PipelineSetti
         print(f'no support plane: {result.support_note}')
     up = 'unknown' if result.up is None else _format_vector(result.up).strip()
     print(f'up: {up} (from {result.up_source})')
+    if result.cut_objects:
+        numbers = ', '.join(str(index) for index in result.cut_objects)
+        print(f"cut by the view's edge (their grasps last): object(s) {numbers}")
     print(f'{"obj":>3} {"box":>3} {"points":>7}  {"centre":^29}  {"extents":^29}  {"volume":>11}')
     rows = zip(leaves, result.leaf_object_indices, result.leaf_observed_counts, strict=True)
     for index, (box, obj, count) in enumerate(rows):
@@ -81,12 +84,13 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
     ``objects``: per object its decomposition's own dict
     (:meth:`~mvbb_ros.geometry.decomposition.result.Decomposition.to_dict`: the tree, the leaves by
     node index, each box) with its index, observed point count, completion (and why it was
-    skipped, or None) and mirror plane; ``leaves``: every leaf box in the order grasps number
-    them (``box_index``), with its object, node and observed point count; then the grasps, the
-    support plane (``coefficients`` (a, b, c, d) of ``a x + b y + c z + d = 0`` with (a, b, c)
-    the unit normal pointing up, ``outline`` corners in the cloud frame, ``inliers``; or None
-    and ``support_note`` says why), the up direction used and its source, the filter counts and
-    every parameter in force.
+    skipped, or None), mirror plane and how far it stands from the view's edge (``view_edge``:
+    ``gap_deg`` and ``cut``; None when not measured); ``leaves``: every leaf box in the order
+    grasps number them (``box_index``), with its object, node and observed point count; then the
+    grasps, the support plane (``coefficients`` (a, b, c, d) of ``a x + b y + c z + d = 0`` with
+    (a, b, c) the unit normal pointing up, ``outline`` corners in the cloud frame, ``inliers``;
+    or None and ``support_note`` says why), the up direction used and its source, the filter
+    counts and every parameter in force.
     """
     objects = []
     leaves = []
@@ -98,6 +102,7 @@ def result_document(result: PipelineResult, settings: PipelineSettings) -> dict[
             observed_points=item.shape.observed,
             completion=item.shape.method,
             completion_skipped=item.shape.skipped,
+            view_edge=None if item.view_edge is None else asdict(item.view_edge),
             mirror_plane=None
             if plane is None
             else {'normal': plane.normal.tolist(), 'point': plane.point.tolist()},

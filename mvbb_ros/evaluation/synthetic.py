@@ -532,6 +532,26 @@ def table_top_frame(
     return TableTopFrame(points, labels, pose, count)
 
 
+def cut_table_top_frame(seed: int, count: int) -> tuple[Float32Array, IntArray, int]:
+    """
+    Return :func:`table_top_frame` with its image cut through one of its objects.
+
+    The image keeps the columns on one side of the middle column of object ``seed % count``
+    (the right side for odd seeds): that object stands across the new image's edge, as an
+    object the camera sees only in part. Returns the finite points (N, 3), each point's object
+    label (:data:`BACKGROUND` for the rest) and the cut object's label; float32, metres, in the
+    camera optical frame.
+    """
+    frame = table_top_frame(seed, count)
+    cut = seed % count
+    columns = np.flatnonzero((frame.labels == cut).any(axis=0))
+    middle = (int(columns.min()) + int(columns.max())) // 2
+    kept = slice(middle, None) if seed % 2 else slice(None, middle)
+    points, labels = frame.points[:, kept], frame.labels[:, kept]
+    finite = np.all(np.isfinite(points), axis=-1)
+    return points[finite], labels[finite], cut
+
+
 def _object_scene(kind: str, yaw_deg: float) -> tuple[Scene, FloatArray]:
     """Place one object at the table centre; also return its bounding box centre (world, m)."""
     scene = place_objects([kind], [pose_matrix(yaw=math.radians(yaw_deg))])

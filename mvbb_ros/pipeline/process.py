@@ -16,7 +16,7 @@ from dataclasses import asdict, replace
 import time
 from typing import Any
 
-from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray
+from mvbb_ros.arrays import column_max, column_min, column_span, FloatArray, IndexArray
 from mvbb_ros.common.blas import one_blas_thread
 from mvbb_ros.common.workers import Task, workers
 from mvbb_ros.geometry.box import Box
@@ -49,6 +49,7 @@ from mvbb_ros.pipeline.scene import (
     SupportPlane,
 )
 from mvbb_ros.pipeline.settings import PipelineSettings
+from mvbb_ros.pipeline.view_edge import cut_by_view, view_outline, ViewEdge
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -290,6 +291,8 @@ def _process_points(
     # What the voxel grid was made of (the cropped cloud, or what stands on the table): small
     # objects take their points from it again, finer (:mod:`mvbb_ros.pipeline.density`).
     raw: NDArray[np.floating] | None = None
+    # The frame as the scene stage saw it (its sample): the view's outline is measured on it.
+    frame: NDArray[np.floating] | None = None
     if settings.scene.support_plane != 'none' and filtering.voxel_size > 0.0:
         # The table first, on a sample of the points; then the filters on what stands on it
         # only, not on the whole room. Without a table the cloud is filtered as without the
@@ -305,7 +308,7 @@ def _process_points(
         if bounds is None:  # not cropped by the decoder
             scoped = crop_points(array, filtering.crop_min, filtering.crop_max)
         raw = scoped
-        sample = scene_sample(scoped, filtering.voxel_size)
+        sample = frame = scene_sample(scoped, filtering.voxel_size)
         if len(sample) >= min_points:
             scene = find_scene(
                 sample,
@@ -350,7 +353,7 @@ def _process_points(
                 min_points=min_points,
             )
             if scene.kept is not None:
-                filtered = filtered[scene.kept]
+                frame, filtered = filtered, filtered[scene.kept]
         timings['scene'] = (time.perf_counter() - start) * 1e3
     if near is not None:
         counts = replace(counts, finite=int(len(near) if decoded is None else decoded.finite))
@@ -428,6 +431,9 @@ def _process_points(
         groups = groups[: view.max_objects]
     timings['completion'] = timings['decompose'] = 0.0
     refining = settings.refinement.enabled
+    start = time.perf_counter()
+    edges = _view_edges(frame, scene, standing, groups, settings, tolerance)
+    timings['scene'] += (time.perf_counter() - start) * 1e3  # the view's edge: the scene's
 
     def one_object(index: int) -> tuple[ObjectResult, Task[SurfaceModel] | None, float, float]:
         start = time.perf_counter()
@@ -467,7 +473,14 @@ def _process_points(
         decomposition = decompose(shape.points, pool=pool, **asdict(settings.decomposition))
         decompose_ms = (time.perf_counter() - start) * 1e3
         item = ObjectResult(
-            index, members, shape, decomposition, floor, object_spacing, object_voxel
+            index,
+            members,
+            shape,
+            decomposition,
+            floor,
+            object_spacing,
+            object_voxel,
+            view_edge=edges[index],
         )
         return item, surface, completion_ms, decompose_ms
 
@@ -493,6 +506,11 @@ def _process_points(
         options['support_plane'] = support.coefficients  # no approach through the table
     timings['grasps'] = 0.0
 
+    cut = [item.index for item in objects if item.cut_by_view]
+    limit = options['max_grasps']
+    if cut and not refining:
+        options['max_grasps'] = 0  # all of them, then the whole objects' first
+
     def hypotheses() -> list[Grasp]:
         begin = time.perf_counter()
         made = grasp_hypotheses(
@@ -502,6 +520,9 @@ def _process_points(
             object_indices=result.leaf_object_indices,
             **options,
         )
+        if cut and not refining:
+            made.sort(key=lambda grasp: grasp.object_index in cut)  # stable
+            made = made[:limit] if limit > 0 else made
         timings['grasps'] = (time.perf_counter() - begin) * 1e3
         return made
 
@@ -522,10 +543,43 @@ def _process_points(
         grasp_view(settings, up),
         previous,
         pool=pool,
+        deferred=cut,
     )
     result.grasps = result.refinement.grasps
     timings['refine'] = (time.perf_counter() - start) * 1e3 - timings['grasps']
     return result
+
+
+def _view_edges(
+    frame: NDArray[np.floating] | None,
+    scene: Scene,
+    points: FloatArray,
+    groups: list[IndexArray],
+    settings: PipelineSettings,
+    tolerance: float,
+) -> list[ViewEdge | None]:
+    """
+    Return how far each object (`groups` of `points`) stands from the view's edge, or Nones.
+
+    Measured only on a scene frame (`scene` found its support on `frame`, the points the scene
+    stage looked at) with ``view_edge_margin_deg`` on (:mod:`mvbb_ros.pipeline.view_edge`).
+    `tolerance` is the objects' cluster tolerance (metres).
+    """
+    margin = settings.view.view_edge_margin_deg
+    support = scene.support
+    if frame is None or support is None or scene.kept is None or margin <= 0.0:
+        return [None] * len(groups)
+    outline = view_outline(frame, settings.view.viewpoint)
+    if outline is None:
+        return [None] * len(groups)
+    # What the table's outline strip dropped above the table: it may hide where the view cuts
+    # an object that stands at the table's edge.
+    stage = settings.scene
+    band = standing_mask(frame, support, replace(stage, support_margin=0.0))
+    band[scene.kept] = False
+    strip = np.compress(band, frame, axis=0)
+    reach = stage.support_margin + tolerance
+    return [cut_by_view(outline, points[members], margin, strip, reach) for members in groups]
 
 
 def _unit(vector: ArrayLike) -> tuple[float, float, float]:

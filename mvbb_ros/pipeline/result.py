@@ -18,6 +18,7 @@ from mvbb_ros.geometry.grasping.refine import RefinedGrasps
 from mvbb_ros.geometry.views.completion import CompletedView
 from mvbb_ros.pipeline.filtering import FilterCounts
 from mvbb_ros.pipeline.scene import SupportPlane
+from mvbb_ros.pipeline.view_edge import ViewEdge
 import numpy as np
 
 
@@ -41,6 +42,9 @@ class ObjectResult:
         own finer edge (``object_voxel_cells``, :mod:`mvbb_ros.pipeline.density`; its observed
         points are then not among the filtered points that `point_indices` indexes), else the
         frame's ``voxel_size``.
+    :ivar view_edge: how far the object's filtered points stand from the view's edge, and
+        whether the view cuts the object (:mod:`mvbb_ros.pipeline.view_edge`); None when not
+        measured (no support plane, ``view_edge_margin_deg`` 0, or not one camera's view).
     """
 
     index: int
@@ -50,6 +54,12 @@ class ObjectResult:
     support_floor: float | None = None
     spacing: float = 0.0
     voxel_size: float = 0.0
+    view_edge: ViewEdge | None = None
+
+    @property
+    def cut_by_view(self) -> bool:
+        """Tell whether the sensor saw the object only in part: its grasps come last."""
+        return self.view_edge is not None and self.view_edge.cut
 
     @property
     def leaf_observed_counts(self) -> list[int]:
@@ -108,6 +118,11 @@ class PipelineResult:
     def leaf_observed_counts(self) -> list[int]:
         """Return how many observed points each of :attr:`leaves` holds."""
         return [count for item in self.objects for count in item.leaf_observed_counts]
+
+    @property
+    def cut_objects(self) -> list[int]:
+        """Return the objects the view's edge cuts (their grasps come after the others')."""
+        return [item.index for item in self.objects if item.cut_by_view]
 
     @property
     def inner_boxes(self) -> list[Box]:

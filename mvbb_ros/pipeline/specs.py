@@ -345,6 +345,16 @@ SPECS: tuple[SettingSpec, ...] = (
         node_default=16,
     ),
     SettingSpec(
+        'view_edge_margin_deg',
+        ViewSettings,
+        float,
+        "On a frame with a support plane, an object closer than this (degrees) to the frame's "
+        "edge as the sensor sees it is cut by the view: its grasps come after whole objects'. "
+        '0: off.',
+        (0.0, 45.0),
+        node_default=0.5,
+    ),
+    SettingSpec(
         'shape_completion',
         ViewSettings,
         str,

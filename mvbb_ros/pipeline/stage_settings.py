@@ -68,6 +68,10 @@ class ViewSettings:
         across takes its points again from the cloud at its largest extent over this many
         (:mod:`mvbb_ros.pipeline.density`); 0: every object keeps the frame's voxel grid.
     :ivar min_voxel_size: the finest voxel edge an object gets (metres).
+    :ivar view_edge_margin_deg: on a scene frame (a support plane found), an object whose
+        points come closer than this to the frame's outline as the sensor sees it (degrees) is
+        cut by the view's edge: its grasps come after those of whole objects
+        (:mod:`mvbb_ros.pipeline.view_edge`); 0: no object is.
     """
 
     viewpoint: tuple[float, ...] = (0.0, 0.0, 0.0)
@@ -77,6 +81,7 @@ class ViewSettings:
     max_objects: int = 0
     object_voxel_cells: int = 0
     min_voxel_size: float = 0.002
+    view_edge_margin_deg: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -528,6 +528,8 @@ class DecomposerNode(Node):
             note = empty_grasps_note(result, self._settings)
             if note:
                 values['no_grasps_because'] = note
+            if result.cut_objects:
+                values['cut_by_view_edge'] = ', '.join(str(i) for i in result.cut_objects)
             if result.capped:
                 values['capped'] = '; '.join(result.capped)
             if result.units_note is not None:

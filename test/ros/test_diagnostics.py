@@ -9,6 +9,9 @@ from __future__ import annotations
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
+from mvbb_ros.evaluation.synthetic import cut_table_top_frame
+from mvbb_ros.pipeline.process import process_points
+from mvbb_ros.pipeline.settings import PipelineSettings
 from mvbb_ros.ros.diagnostics import ReceptionLog
 from mvbb_ros.ros.encode import create_cloud_xyz
 import pytest
@@ -132,6 +135,28 @@ def test_a_cloud_in_millimetres_is_named_in_the_diagnostics():
         status = next(s for s in reversed(_statuses(graph)) if 'units' in _values(s))
         assert _values(status)['units'].startswith('looks like millimetres: ')
         assert status.level == DiagnosticStatus.WARN
+    finally:
+        graph.close()
+
+
+def test_objects_cut_by_the_views_edge_are_named_in_the_diagnostics():
+    points, _, _ = cut_table_top_frame(9, 5)
+    expected = process_points(points, PipelineSettings())
+    assert expected.cut_objects
+    graph = Graph()
+    try:
+        cloud = create_cloud_xyz(points, frame_id='camera')
+        cloud.header.stamp = Time(sec=3, nanosec=0)
+        grasps = graph.publish_until_answered(graph.publisher(), cloud)
+        assert len(grasps.poses) == len(expected.grasps)
+
+        def named() -> bool:
+            return any('cut_by_view_edge' in _values(status) for status in _statuses(graph))
+
+        assert graph.spin_until(named, timeout_s=10.0)
+        status = next(s for s in reversed(_statuses(graph)) if 'cut_by_view_edge' in _values(s))
+        numbers = ', '.join(str(index) for index in expected.cut_objects)
+        assert _values(status)['cut_by_view_edge'] == numbers
     finally:
         graph.close()
 

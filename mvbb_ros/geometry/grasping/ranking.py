@@ -85,6 +85,13 @@ def _distinct(
     return keep
 
 
+def _order(scores: FloatArray, deferred: BoolArray | None) -> IndexArray:
+    """Return the lines best first: by score, the `deferred` after all others, ties in order."""
+    if deferred is None or not deferred.any():
+        return np.argsort(-scores, kind='stable')
+    return np.lexsort((-scores, deferred))  # stable: ties keep the lines' order
+
+
 def _ranking(
     centers: FloatArray,
     approaches: FloatArray,
@@ -92,14 +99,16 @@ def _ranking(
     scores: FloatArray,
     settings: RefinementSettings,
     limit: int,
+    deferred: BoolArray | None = None,
 ) -> tuple[IndexArray, FloatArray]:
     """
     Return the lines to publish (indices, best first) and their scores.
 
     The best `limit` + 1 distinct grasps (:func:`_distinct`; one more than published, for the
-    previous frame's grasp to replace), ties kept in the lines' order.
+    previous frame's grasp to replace), ties kept in the lines' order; the `deferred` lines
+    (on objects cut by the view's edge) after all others.
     """
-    ranked = np.argsort(-scores, kind='stable')
+    ranked = _order(scores, deferred)
     distinct = _distinct(
         np.ascontiguousarray(centers[ranked]),
         np.ascontiguousarray(approaches[ranked]),
@@ -131,6 +140,7 @@ def _pruned_ranking(
     view: GraspView,
     limit: int,
     pool: Workers | None = None,
+    deferred: BoolArray | None = None,
 ) -> tuple[FloatArray, IndexArray, FloatArray]:
     """
     Return :func:`_ranking` of the hand model's scores, evaluating few lines' neighbours.
@@ -140,7 +150,8 @@ def _pruned_ranking(
     line's score with all its neighbours holding bounds its score from above, so the lines are
     scored in the order of their bounds, in batches, until the ranking of the scored lines ends
     above the bound of every line not scored (those can neither enter it nor, coming later,
-    remove a grasp from it). The returned quality is NaN for the lines not scored.
+    remove a grasp from it). The `deferred` lines come after all others, as in
+    :func:`_ranking`. The returned quality is NaN for the lines not scored.
 
     :return: each line's quality, the ranking's line indices and their scores.
     """
@@ -161,7 +172,8 @@ def _pruned_ranking(
             )
     # The centring's weight and the preference enter as for the exact score (both monotone).
     bound_scores = _score(bound, preference, settings)
-    by_bound = np.argsort(-bound_scores, kind='stable')
+    by_bound = _order(bound_scores, deferred)
+    tiers = np.zeros(count, dtype=np.bool_) if deferred is None else deferred
     quality = np.full(count, np.nan)
     known = np.zeros(count, dtype=np.bool_)
     size = min(count, PRUNE_BATCH * (limit + 1))
@@ -178,11 +190,17 @@ def _pruned_ranking(
             _score(quality[scored], preference[scored], settings),
             settings,
             limit,
+            None if deferred is None else deferred[scored],
         )
         if size >= count:
             return quality, scored[picked], scores
-        # Strictly above the best bound left, with room for the bound's rounding.
-        if len(picked) == limit + 1 and scores[-1] > bound_scores[by_bound[size]] + 1e-12:
+        # Strictly above the best bound left, with room for the bound's rounding (or that
+        # line and every line after it deferred, the ranking's last not).
+        last, best_left = scored[picked[-1]], by_bound[size]
+        if len(picked) == limit + 1 and (
+            tiers[last] < tiers[best_left]
+            or (tiers[last] == tiers[best_left] and scores[-1] > bound_scores[best_left] + 1e-12)
+        ):
             return quality, scored[picked], scores
         size = min(count, size + max(limit + 1, int(PRUNE_GROWTH * size)))
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-import math
 
 from mvbb_ros.arrays import cross, FloatArray, IndexArray, read_only
 from mvbb_ros.common.workers import Workers
@@ -293,6 +292,7 @@ def refine_grasps(
     previous: Grasp | None = None,
     *,
     pool: Workers | None = None,
+    deferred: Sequence[int] = (),
 ) -> RefinedGrasps:
     """
     Return grasps checked and scored on the points, best first (the rules: docs/grasp_rules.md).
@@ -308,6 +308,8 @@ def refine_grasps(
         stays on top while it holds and scores within ``settings.hysteresis`` of the best.
     :param pool: the workers the candidate lines are spread over (the same grasps with any),
         or None for the calling thread alone.
+    :param deferred: objects (indices into `models`) the view's edge cuts: their grasps come
+        after all others, and a previous grasp on one does not stay above a whole object's.
     :return: the grasps and what was tried.
     """
     if not boxes or not models:
@@ -363,9 +365,10 @@ def refine_grasps(
     preference = _box_preferences(boxes, view)[box_index[valid]]
     limit = view.max_grasps if view.max_grasps > 0 else len(valid)
     holding = (objects[valid], origins[valid], approaches[valid], closings[valid], rows[valid])
+    cut = np.isin(objects[valid], np.asarray(deferred, dtype=np.intp)) if deferred else None
     if settings.finger_length > 0.0 and view.max_grasps > 0:
         quality, picked, scores = _pruned_ranking(
-            models, *holding, closes, preference, settings, view, limit, pool
+            models, *holding, closes, preference, settings, view, limit, pool, cut
         )
     else:
         quality = _robust_quality(models, *holding, settings, view, pool)
@@ -376,6 +379,7 @@ def refine_grasps(
             _score(quality, preference, settings),
             settings,
             limit,
+            cut,
         )
     rows[valid, COL_QUALITY] = quality
     order = valid[picked]
@@ -394,8 +398,14 @@ def refine_grasps(
     result = RefinedGrasps(grasps, candidates=len(origins), holding=len(valid))
     if previous is not None:
         kept = rescore_grasp(previous, boxes, box_objects, models, settings, view)
-        best = grasps[0].score if grasps else -math.inf
-        if kept is not None and kept.score + settings.hysteresis >= best:
+        stays = kept is not None
+        if kept is not None and grasps:
+            # Whole objects' grasps before cut objects' (deferred), then the score's margin.
+            kept_cut, best_cut = (g.object_index in deferred for g in (kept, grasps[0]))
+            stays = kept_cut < best_cut or (
+                kept_cut == best_cut and kept.score + settings.hysteresis >= grasps[0].score
+            )
+        if kept is not None and stays:
             rest = [g for g in grasps if not _same(g, kept, settings)]
             result.grasps = [kept, *rest]
             result.kept_previous = True

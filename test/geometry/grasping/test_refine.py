@@ -305,6 +305,19 @@ def _grasp_rows(result) -> list[tuple[float, ...]]:
     ]
 
 
+def _assert_bounded_lists_are_its_head(points: np.ndarray, whole, limit: int) -> None:
+    """Check that ``max_grasps: limit`` lists the head of `whole`, whatever the batches."""
+    from mvbb_ros.geometry.grasping import ranking
+
+    # One ranking's worth more each round, the defaults, and batches that double.
+    for batch, growth in ((1, 0.0), (ranking.PRUNE_BATCH, ranking.PRUNE_GROWTH), (1, 1.0)):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(ranking, 'PRUNE_BATCH', batch)
+            patch.setattr(ranking, 'PRUNE_GROWTH', growth)
+            bounded = process_points(points, PipelineSettings().updated({'max_grasps': limit}))
+        assert _grasp_rows(bounded) == _grasp_rows(whole)[:limit]
+
+
 @settings(max_examples=8, deadline=None)
 @given(st.integers(0, 2**16), st.integers(1, 5), st.sampled_from([1, 5, 32]))
 def test_a_bounded_grasp_list_is_the_head_of_the_whole_list(seed, count, limit):
@@ -315,19 +328,25 @@ def test_a_bounded_grasp_list_is_the_head_of_the_whole_list(seed, count, limit):
     to the bit), whatever the batches the pruning scores its lines in.
     """
     from mvbb_ros.evaluation.synthetic import table_top_frame
-    from mvbb_ros.geometry.grasping import ranking
 
     frame = table_top_frame(seed, count).points.reshape(-1, 3)
     points = frame[np.isfinite(frame).all(axis=1)]
     whole = process_points(points, PipelineSettings().updated({'max_grasps': 0}))
     assert len(whole.grasps) > limit, 'the scene must have more grasps than the list keeps'
-    # One ranking's worth more each round, the defaults, and batches that double.
-    for batch, growth in ((1, 0.0), (ranking.PRUNE_BATCH, ranking.PRUNE_GROWTH), (1, 1.0)):
-        with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(ranking, 'PRUNE_BATCH', batch)
-            patch.setattr(ranking, 'PRUNE_GROWTH', growth)
-            bounded = process_points(points, PipelineSettings().updated({'max_grasps': limit}))
-        assert _grasp_rows(bounded) == _grasp_rows(whole)[:limit]
+    _assert_bounded_lists_are_its_head(points, whole, limit)
+
+
+@pytest.mark.parametrize('limit', [1, 5, 32])
+def test_with_a_cut_object_a_bounded_grasp_list_is_the_head_of_the_whole_list(limit):
+    """The cut object's lines come after the others' in the pruned ranking too."""
+    from mvbb_ros.evaluation.synthetic import cut_table_top_frame
+
+    points, _, _ = cut_table_top_frame(9, 5)
+    whole = process_points(points, PipelineSettings().updated({'max_grasps': 0}))
+    assert whole.cut_objects and len(whole.grasps) > limit
+    cut = [grasp.object_index in whole.cut_objects for grasp in whole.grasps]
+    assert cut == sorted(cut) and any(cut), 'the cut object has grasps, after the others'
+    _assert_bounded_lists_are_its_head(points, whole, limit)
 
 
 @pytest.mark.parametrize('count', [1, 2])
