@@ -331,8 +331,10 @@ def output_messages(
     leaves = [] if result is None else result.leaves
     objects = [] if result is None else result.leaf_object_indices
     counts = [] if result is None else result.leaf_observed_counts
+    cut = set() if result is None else set(result.cut_objects)
     labels = [
-        f'{index}: {count} pts' if len(set(objects)) < 2 else f'{obj}.{index}: {count} pts'
+        (f'{index}: {count} pts' if len(set(objects)) < 2 else f'{obj}.{index}: {count} pts')
+        + (', cut by the view' if obj in cut else '')
         for index, (obj, count) in enumerate(zip(objects, counts, strict=True))
     ]
     support = None if result is None else result.support

@@ -20,6 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PolygonStamped, PoseArray
 from mvbb_ros.cli.main import main
 from mvbb_ros.common.progress import ProgressBar
+from mvbb_ros.evaluation.synthetic import cut_table_top_frame
 from mvbb_ros.geometry.grasping.hypotheses import GraspStats
 from mvbb_ros.pipeline import explain
 from mvbb_ros.pipeline.decode import read_xyz
@@ -369,6 +370,20 @@ def test_output_messages_follow_publish_tree_and_clear_on_failure():
         assert cleared[suffix].width == 0 and cleared[suffix].header == cloud.header
         assert len(cleared[suffix].fields) > 3, 'an empty cloud still names its fields'
     assert cleared['support'].polygon.points == [] and cleared['support'].header == cloud.header
+
+
+def test_the_labels_of_boxes_of_objects_cut_by_the_view_say_so():
+    points, _, _ = cut_table_top_frame(9, 5)
+    cloud = _cloud(points, sec=1)
+    settings = settings_from_mapping({})
+    result = process_cloud(cloud, settings)
+    assert result.cut_objects
+    boxes = output_messages(result, cloud.header, settings)['boxes'].markers
+    labels = {m.id: m.text for m in boxes if m.ns.endswith('/labels')}
+    objects = result.leaf_object_indices
+    assert len(labels) == len(objects)
+    for index, obj in enumerate(objects):
+        assert labels[index].endswith(', cut by the view') == (obj in result.cut_objects)
 
 
 # Shared real bags ------------------------------------------------------------------------------
