@@ -34,6 +34,9 @@ from scipy.spatial import cKDTree
 #: A frame whose points lie further than this from its mean direction (degrees) is not one
 #: camera's view (a spinning LiDAR's sweep): it has no outline here.
 MAX_HALF_ANGLE_DEG = 75.0
+#: Points nearer the viewpoint than this (metres) have no direction and are left out (some
+#: depth drivers write a pixel without depth as the point (0, 0, 0)).
+NEAR_M = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,8 +60,9 @@ def view_outline(points: NDArray[np.floating], viewpoint: ArrayLike) -> ViewOutl
     """
     Return the outline of the frame `points` (N, 3), metres, seen from `viewpoint`.
 
-    None when the points do not make one view: fewer than 3, any at the viewpoint, any further
-    than :data:`MAX_HALF_ANGLE_DEG` from their mean direction, or all on one line of sight.
+    None when the points do not make one view: fewer than 3 (of those at least :data:`NEAR_M`
+    from the viewpoint), any further than :data:`MAX_HALF_ANGLE_DEG` from their mean direction,
+    or all on one line of sight.
     """
     eye = np.ascontiguousarray(viewpoint, dtype=np.float64)
     array = np.ascontiguousarray(points)
@@ -68,17 +72,18 @@ def view_outline(points: NDArray[np.floating], viewpoint: ArrayLike) -> ViewOutl
         return None
     array = array.view()
     array.flags.writeable = False  # the kernels' signatures: one for any input
-    centre = _mean_direction(array, eye)
+    centre = _mean_direction(array, eye, NEAR_M)
     norm = float(np.linalg.norm(centre))
-    if not norm > 0.0:  # a point at the viewpoint, or the directions cancel
+    if not norm > 0.0:  # no point away from the viewpoint, or the directions cancel
         return None
     centre /= norm
     first, second = perpendicular_axes(centre)
     axes = np.stack([first, second, centre])
-    flat = _gnomonic(array, eye, axes, math.cos(math.radians(MAX_HALF_ANGLE_DEG)))
-    if flat is None:
+    flat = np.empty((len(array), 2))
+    kept = _project(array, eye, axes, math.cos(math.radians(MAX_HALF_ANGLE_DEG)), NEAR_M, flat)
+    if kept < 3:  # a point too far from the centre (-1), or too few
         return None
-    hull = outline_2d(flat)
+    hull = outline_2d(flat[:kept])
     if len(hull) < 3:
         return None
     edges = np.roll(hull, -1, axis=0) - hull
@@ -88,34 +93,26 @@ def view_outline(points: NDArray[np.floating], viewpoint: ArrayLike) -> ViewOutl
     return ViewOutline(eye, axes, outward, limits)
 
 
-def _gnomonic(
-    points: NDArray[np.floating], eye: FloatArray, axes: FloatArray, cosine: float
-) -> FloatArray | None:
-    """Return `points` on the plane one unit from `eye` along ``axes[2]``; None past `cosine`."""
-    flat = np.empty((len(points), 2))
-    return flat if _project(points, eye, axes, cosine, flat) else None
-
-
 _SIGNATURES = [
     types.Array(dtype, 2, 'C', readonly=True) for dtype in (types.float32, types.float64)
 ]
 
 
 @njit(
-    [types.float64[::1](array, types.float64[::1]) for array in _SIGNATURES],
+    [types.float64[::1](array, types.float64[::1], types.float64) for array in _SIGNATURES],
     cache=True,
     nogil=True,
 )
-def _mean_direction(points: Any, eye: Any) -> Any:
-    """Return the sum of the unit directions from `eye` to `points` (zero for a point at it)."""
+def _mean_direction(points: Any, eye: Any, near: Any) -> Any:
+    """Return the sum of the unit directions from `eye` to those `points` at least `near` away."""
     total = np.zeros(3)
     for i in range(points.shape[0]):
         x = np.float64(points[i, 0]) - eye[0]
         y = np.float64(points[i, 1]) - eye[1]
         z = np.float64(points[i, 2]) - eye[2]
         length = math.sqrt(x * x + y * y + z * z)
-        if length == 0.0:
-            return np.zeros(3)
+        if not length >= near:
+            continue
         total[0] += x / length
         total[1] += y / length
         total[2] += z / length
@@ -124,26 +121,40 @@ def _mean_direction(points: Any, eye: Any) -> Any:
 
 @njit(
     [
-        types.boolean(
-            array, types.float64[::1], types.float64[:, ::1], types.float64, types.float64[:, ::1]
+        types.int64(
+            array,
+            types.float64[::1],
+            types.float64[:, ::1],
+            types.float64,
+            types.float64,
+            types.float64[:, ::1],
         )
         for array in _SIGNATURES
     ],
     cache=True,
     nogil=True,
 )
-def _project(points: Any, eye: Any, axes: Any, cosine: Any, flat: Any) -> Any:
-    """Put `points` on the plane into `flat`; False when one lies further than `cosine` allows."""
+def _project(points: Any, eye: Any, axes: Any, cosine: Any, near: Any, flat: Any) -> Any:
+    """
+    Put the `points` at least `near` from `eye` on the plane, in order, into `flat`.
+
+    Return how many; -1 when one lies further from ``axes[2]`` than `cosine` allows.
+    """
+    kept = 0
     for i in range(points.shape[0]):
         x = np.float64(points[i, 0]) - eye[0]
         y = np.float64(points[i, 1]) - eye[1]
         z = np.float64(points[i, 2]) - eye[2]
+        length = math.sqrt(x * x + y * y + z * z)
+        if not length >= near:
+            continue
         depth = axes[2, 0] * x + axes[2, 1] * y + axes[2, 2] * z
-        if not depth > cosine * math.sqrt(x * x + y * y + z * z):
-            return False
-        flat[i, 0] = (axes[0, 0] * x + axes[0, 1] * y + axes[0, 2] * z) / depth
-        flat[i, 1] = (axes[1, 0] * x + axes[1, 1] * y + axes[1, 2] * z) / depth
-    return True
+        if not depth > cosine * length:
+            return -1
+        flat[kept, 0] = (axes[0, 0] * x + axes[0, 1] * y + axes[0, 2] * z) / depth
+        flat[kept, 1] = (axes[1, 0] * x + axes[1, 1] * y + axes[1, 2] * z) / depth
+        kept += 1
+    return kept
 
 
 def edge_gaps(outline: ViewOutline, points: ArrayLike) -> FloatArray:
@@ -261,6 +272,7 @@ __all__ = [
     'cut_by_view',
     'edge_gaps',
     'MAX_HALF_ANGLE_DEG',
+    'NEAR_M',
     'view_outline',
     'ViewEdge',
     'ViewOutline',

@@ -66,7 +66,18 @@ def test_clouds_that_are_not_one_view_have_no_outline():
     assert view_outline(sweep, (0.0, 0.0, 0.0)) is None, 'a LiDAR sweep around the sensor'
     assert view_outline(sweep[:2], (0.0, 0.0, 0.0)) is None
     at_the_eye = np.array([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [0.0, 0.0, 0.0]])
-    assert view_outline(at_the_eye, (0.0, 0.0, 0.0)) is None
+    assert view_outline(at_the_eye, (0.0, 0.0, 0.0)) is None, 'two points with a direction'
+
+
+def test_points_at_the_viewpoint_are_left_out_of_the_outline():
+    """Some depth drivers write a pixel without depth as (0, 0, 0): it has no direction."""
+    frame, eye = _camera_frame(5, 30.0, 20.0)
+    flat = frame.reshape(-1, 3)
+    outline = view_outline(flat, eye)
+    holes = np.concatenate([flat, np.tile(eye, (50, 1))])
+    with_holes = view_outline(np.random.default_rng(0).permutation(holes), eye)
+    assert outline is not None and with_holes is not None
+    np.testing.assert_allclose(edge_gaps(with_holes, flat), edge_gaps(outline, flat), atol=1e-9)
 
 
 @pytest.mark.parametrize(('seed', 'count'), [(2, 3), (9, 5)])
