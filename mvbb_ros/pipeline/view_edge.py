@@ -98,6 +98,24 @@ _SIGNATURES = [
 ]
 
 
+@njit
+def _ray(points: Any, i: Any, eye: Any) -> Any:
+    """Return point `i` of `points` less `eye` (x, y, z in float64), and its length."""
+    x = np.float64(points[i, 0]) - eye[0]
+    y = np.float64(points[i, 1]) - eye[1]
+    z = np.float64(points[i, 2]) - eye[2]
+    return x, y, z, math.sqrt(x * x + y * y + z * z)
+
+
+@njit
+def _local(x: Any, y: Any, z: Any, axes: Any) -> Any:
+    """Return the ray (x, y, z) along ``axes[2]``, ``axes[0]`` and ``axes[1]`` (not divided)."""
+    depth = axes[2, 0] * x + axes[2, 1] * y + axes[2, 2] * z
+    first = axes[0, 0] * x + axes[0, 1] * y + axes[0, 2] * z
+    second = axes[1, 0] * x + axes[1, 1] * y + axes[1, 2] * z
+    return depth, first, second
+
+
 @njit(
     [types.float64[::1](array, types.float64[::1], types.float64) for array in _SIGNATURES],
     cache=True,
@@ -107,10 +125,7 @@ def _mean_direction(points: Any, eye: Any, near: Any) -> Any:
     """Return the sum of the unit directions from `eye` to those `points` at least `near` away."""
     total = np.zeros(3)
     for i in range(points.shape[0]):
-        x = np.float64(points[i, 0]) - eye[0]
-        y = np.float64(points[i, 1]) - eye[1]
-        z = np.float64(points[i, 2]) - eye[2]
-        length = math.sqrt(x * x + y * y + z * z)
+        x, y, z, length = _ray(points, i, eye)
         if not length >= near:
             continue
         total[0] += x / length
@@ -142,17 +157,14 @@ def _project(points: Any, eye: Any, axes: Any, cosine: Any, near: Any, flat: Any
     """
     kept = 0
     for i in range(points.shape[0]):
-        x = np.float64(points[i, 0]) - eye[0]
-        y = np.float64(points[i, 1]) - eye[1]
-        z = np.float64(points[i, 2]) - eye[2]
-        length = math.sqrt(x * x + y * y + z * z)
+        x, y, z, length = _ray(points, i, eye)
         if not length >= near:
             continue
-        depth = axes[2, 0] * x + axes[2, 1] * y + axes[2, 2] * z
+        depth, first, second = _local(x, y, z, axes)
         if not depth > cosine * length:
             return -1
-        flat[kept, 0] = (axes[0, 0] * x + axes[0, 1] * y + axes[0, 2] * z) / depth
-        flat[kept, 1] = (axes[1, 0] * x + axes[1, 1] * y + axes[1, 2] * z) / depth
+        flat[kept, 0] = first / depth
+        flat[kept, 1] = second / depth
         kept += 1
     return kept
 
@@ -197,15 +209,12 @@ def edge_gaps(outline: ViewOutline, points: ArrayLike) -> FloatArray:
 def _gaps(points: Any, eye: Any, axes: Any, outward: Any, limits: Any, gaps: Any) -> None:
     """Put each point's least distance inside the outline's half-planes into `gaps`."""
     for i in range(points.shape[0]):
-        x = np.float64(points[i, 0]) - eye[0]
-        y = np.float64(points[i, 1]) - eye[1]
-        z = np.float64(points[i, 2]) - eye[2]
-        depth = axes[2, 0] * x + axes[2, 1] * y + axes[2, 2] * z
+        x, y, z, _ = _ray(points, i, eye)
+        depth, first, second = _local(x, y, z, axes)
         if not depth > 0.0:
             gaps[i] = -np.inf
             continue
-        u = (axes[0, 0] * x + axes[0, 1] * y + axes[0, 2] * z) / depth
-        v = (axes[1, 0] * x + axes[1, 1] * y + axes[1, 2] * z) / depth
+        u, v = first / depth, second / depth
         least = np.inf
         for k in range(limits.shape[0]):
             least = min(least, limits[k] - (outward[k, 0] * u + outward[k, 1] * v))

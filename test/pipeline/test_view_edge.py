@@ -144,3 +144,17 @@ def test_in_the_laptop_frame_the_panels_at_the_edge_are_cut_and_the_laptop_grasp
     assert result.cut_objects, 'the panels at the right edge of the view'
     assert all(owners[index] not in (0, 1) for index in result.cut_objects)
     assert result.grasps[0].object_index == laptop
+
+
+def test_without_the_refinement_the_hypotheses_of_cut_objects_come_last_too():
+    points, _, _ = cut_table_top_frame(9, 5)
+    paper_grasps = PipelineSettings().updated({'grasp_refinement': False, 'max_grasps': 0})
+    plain = process_points(points, paper_grasps.updated({'view_edge_margin_deg': 0.0}))
+    result = process_points(points, paper_grasps)
+    assert result.cut_objects and plain.grasps
+    # The paper's ranking within each group, the whole objects' group first.
+    expected = sorted(plain.grasps, key=lambda g: g.object_index in result.cut_objects)
+    assert expected != plain.grasps, 'the rule moved some hypotheses'
+    assert [g.to_dict() for g in result.grasps] == [g.to_dict() for g in expected]
+    bounded = process_points(points, paper_grasps.updated({'max_grasps': 5}))
+    assert [g.to_dict() for g in bounded.grasps] == [g.to_dict() for g in expected[:5]]
