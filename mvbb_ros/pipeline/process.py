@@ -490,6 +490,9 @@ def _process_points(
         # Objects at once, in order; each object's own fits and surface use the rest.
         done = pool.spread(one_object, range(len(groups)))
     objects = [item for item, *_ in done]
+    if any(item.shape.skipped is not None for item in objects):
+        # Not one view from `viewpoint` (the completion said so): no view's edge either.
+        objects = [replace(item, view_edge=None) for item in objects]
     surfaces = [surface for _, surface, *_ in done]
     for _, _, completion_ms, decompose_ms in done:
         timings['completion'] += completion_ms

@@ -158,3 +158,24 @@ def test_without_the_refinement_the_hypotheses_of_cut_objects_come_last_too():
     assert [g.to_dict() for g in result.grasps] == [g.to_dict() for g in expected]
     bounded = process_points(points, paper_grasps.updated({'max_grasps': 5}))
     assert [g.to_dict() for g in bounded.grasps] == [g.to_dict() for g in expected[:5]]
+
+
+def test_in_another_frame_the_same_objects_are_cut_with_the_viewpoint_set_and_none_without():
+    """The outline is of directions from `viewpoint`: any frame, as long as it is the sensor's."""
+    points, _, _ = cut_table_top_frame(9, 5)
+    camera = process_points(points, PipelineSettings())
+    rotation = Rotation.from_euler('xyz', [100.0, -20.0, 35.0], degrees=True).as_matrix()
+    shift = np.array([0.4, -1.2, 0.9])
+    moved = (points.astype(np.float64) @ rotation.T + shift).astype(np.float32)
+    seen = process_points(moved, PipelineSettings().updated({'viewpoint': shift.tolist()}))
+    assert seen.cut_objects == camera.cut_objects
+    assert [item.view_edge.cut for item in seen.objects] == [
+        item.view_edge.cut for item in camera.objects
+    ]
+    # Seen from above the scene (not the sensor), an object's completion finds the cloud is not
+    # one view from there: nothing is measured.
+    above = points.astype(np.float64).mean(axis=0) - [0.0, 1.0, 0.0]  # the camera's y is down
+    lost = process_points(points, PipelineSettings().updated({'viewpoint': above.tolist()}))
+    assert lost.support is not None
+    assert any(item.shape.skipped is not None for item in lost.objects)
+    assert lost.cut_objects == [] and all(item.view_edge is None for item in lost.objects)
