@@ -125,14 +125,25 @@ def outline_2d(flat: FloatArray) -> FloatArray:
     return flat[hull.vertices]  # counter-clockwise for 2D input
 
 
+def half_planes(outline: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """
+    Return the half-planes of the convex, counter-clockwise `outline` (K, 2), K >= 3.
+
+    Each edge's unit outward normal (K, 2) and limit (K,): a point ``q`` is inside when
+    ``outward @ q <= limits`` for every edge.
+    """
+    edges = np.roll(outline, -1, axis=0) - outline
+    outward = np.column_stack([edges[:, 1], -edges[:, 0]])
+    outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
+    return outward, np.einsum('ij,ij->i', outward, outline)
+
+
 def inside_outline(flat: FloatArray, outline: FloatArray, margin: float) -> BoolArray:
     """Tell which of `flat` (N, 2) lie at least `margin` inside the convex `outline` (K, 2)."""
     if len(outline) < 3:
         return np.ones(len(flat), dtype=bool)
-    edges = np.roll(outline, -1, axis=0) - outline
-    outward = np.column_stack([edges[:, 1], -edges[:, 0]])
-    outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
-    limits = np.einsum('ij,ij->i', outward, outline) - margin
+    outward, limits = half_planes(outline)
+    limits = limits - margin
     inside = np.ones(len(flat), dtype=bool)
     for k in range(len(outline)):
         inside &= flat @ outward[k] <= limits[k]

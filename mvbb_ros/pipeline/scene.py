@@ -50,7 +50,7 @@ import math
 from typing import Any, get_args, Literal
 
 from mvbb_ros.arrays import BoolArray, FloatArray, IndexArray, perpendicular_axes
-from mvbb_ros.pipeline.outline import inside_outline, largest_patch, outline_2d
+from mvbb_ros.pipeline.outline import half_planes, inside_outline, largest_patch, outline_2d
 from mvbb_ros.pipeline.plane import fit_plane, MAX_TILT_DEG, plane_through
 from numba import njit, types
 import numpy as np
@@ -457,10 +457,8 @@ def standing_mask(
     frame = np.ascontiguousarray(_frame(support.normal))
     outline = support.outline @ frame.T
     if len(outline) >= 3:
-        edges = np.roll(outline, -1, axis=0) - outline
-        outward = np.column_stack([edges[:, 1], -edges[:, 0]])
-        outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
-        limits = np.einsum('ij,ij->i', outward, outline) - settings.support_margin
+        outward, limits = half_planes(outline)
+        limits = limits - settings.support_margin
     else:
         outward, limits = np.empty((0, 2)), np.empty(0)
     return _standing_kernel(

@@ -13,9 +13,9 @@ An object is cut by the view (:func:`cut_by_view`) when it comes within ``view_e
 of the view's outline. The scene stage keeps what stands at least ``support_margin`` inside the
 table's outline, so an object cut by the view where the view also cuts the table loses that
 strip and ends a little inside the view: the points of that strip next to the object count as
-the object's here. The pipeline
-measures it on scene frames only (a support plane found, so the frame reaches past its
-objects); grasps of cut objects come after those of whole objects (``docs/grasp_rules.md``).
+the object's here. The pipeline measures it on scene frames only (a support plane found, so
+the frame reaches past its objects); grasps of cut objects come after those of whole objects
+(``docs/grasp_rules.md``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import math
 from typing import Any
 
 from mvbb_ros.arrays import FloatArray, perpendicular_axes
-from mvbb_ros.pipeline.outline import outline_2d
+from mvbb_ros.pipeline.outline import half_planes, outline_2d
 from numba import njit, types
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -86,11 +86,7 @@ def view_outline(points: NDArray[np.floating], viewpoint: ArrayLike) -> ViewOutl
     hull = outline_2d(flat[:kept])
     if len(hull) < 3:
         return None
-    edges = np.roll(hull, -1, axis=0) - hull
-    outward = np.column_stack([edges[:, 1], -edges[:, 0]])
-    outward /= np.linalg.norm(outward, axis=1, keepdims=True)
-    limits = np.einsum('ij,ij->i', outward, hull)
-    return ViewOutline(eye, axes, outward, limits)
+    return ViewOutline(eye, axes, *half_planes(hull))
 
 
 _SIGNATURES = [
@@ -253,11 +249,10 @@ def cut_by_view(
     array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     gap = float(edge_gaps(outline, array).min())
     band = np.empty((0, 3)) if strip is None else np.asarray(strip, dtype=np.float64)
+    # Only the strip's points within the object's box grown by `reach` can touch it.
+    low, high = array.min(axis=0) - reach, array.max(axis=0) + reach
     band = band.reshape(-1, 3)
-    if len(band) and reach > 0.0:
-        # Only the strip's points within the object's box grown by `reach` can touch it.
-        low, high = array.min(axis=0) - reach, array.max(axis=0) + reach
-        band = band[np.all((band >= low) & (band <= high), axis=1)]
+    band = band[np.all((band >= low) & (band <= high), axis=1)]
     if len(band) and reach > 0.0:
         distances = cKDTree(array).query(band, distance_upper_bound=reach)[0]
         touching = band[np.isfinite(distances)]
