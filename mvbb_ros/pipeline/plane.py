@@ -17,7 +17,7 @@ from typing import Any
 
 from mvbb_ros.arrays import FloatArray, IndexArray
 from mvbb_ros.geometry.views.cells import key_order
-from numba import njit
+from numba import njit, types
 import numpy as np
 
 #: Random triples tried, and the most points they are scored on.
@@ -43,12 +43,9 @@ MAX_TILT_DEG = 15.0
 
 def plane_through(points: FloatArray) -> tuple[FloatArray, float]:
     """Return the least-squares plane (unit normal, offset) of `points` (N >= 3)."""
-    points = points[:: max(1, len(points) // REFIT_POINTS)]
-    center = points.mean(axis=0)
-    centred = points - center
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    normal = vectors[:, 0]
-    return normal, -float(normal @ center)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    normal, offset = _least_squares(pts, np.arange(len(pts)), len(pts))
+    return normal, offset
 
 
 def fit_plane(
@@ -82,15 +79,88 @@ def fit_plane(
     offsets = -np.einsum('ij,ij->i', normals, sample[corners[usable, 0]])
     columns = np.ascontiguousarray(sample.T, dtype=np.float64)
     best = _best_plane(columns, normals, offsets, distance, RANSAC_BLOCK)
-    normal, offset = normals[best], float(offsets[best])
     settled = math.cos(math.radians(REFIT_TURN_DEG))
-    for _ in range(REFIT_ROUNDS):
-        near = np.abs(points @ normal + offset) <= distance
-        if np.count_nonzero(near) < 3:
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    return _refit(pts, normals[best], float(offsets[best]), distance, REFIT_ROUNDS, settled)
+
+
+#: The points the plane kernels read (read-only arrays too: a caller's cloud is never copied).
+_POINTS = types.Array(types.float64, 2, 'C', readonly=True)
+
+
+@njit(
+    types.Tuple((types.float64[::1], types.float64))(_POINTS, types.int64[::1], types.int64),
+    cache=True,
+    nogil=True,
+)
+def _least_squares(points: FloatArray, index: IndexArray, count: int) -> tuple[FloatArray, float]:
+    """
+    Return the least-squares plane (unit normal, offset) of the points `index[:count]`.
+
+    At most :data:`REFIT_POINTS` of them, evenly strided: the centroid, the scatter matrix about
+    it, and its eigenvector of the smallest eigenvalue.
+    """
+    step = max(1, count // REFIT_POINTS)
+    used = 0
+    cx = cy = cz = 0.0
+    for k in range(0, count, step):
+        i = index[k]
+        cx += points[i, 0]
+        cy += points[i, 1]
+        cz += points[i, 2]
+        used += 1
+    cx, cy, cz = cx / used, cy / used, cz / used
+    scatter = np.zeros((3, 3))
+    for k in range(0, count, step):
+        i = index[k]
+        dx, dy, dz = points[i, 0] - cx, points[i, 1] - cy, points[i, 2] - cz
+        scatter[0, 0] += dx * dx
+        scatter[0, 1] += dx * dy
+        scatter[0, 2] += dx * dz
+        scatter[1, 1] += dy * dy
+        scatter[1, 2] += dy * dz
+        scatter[2, 2] += dz * dz
+    scatter[1, 0], scatter[2, 0], scatter[2, 1] = scatter[0, 1], scatter[0, 2], scatter[1, 2]
+    _, vectors = np.linalg.eigh(scatter)
+    normal = np.ascontiguousarray(vectors[:, 0])
+    return normal, -(normal[0] * cx + normal[1] * cy + normal[2] * cz)
+
+
+@njit(
+    types.Tuple((types.float64[::1], types.float64))(
+        _POINTS, types.float64[::1], types.float64, types.float64, types.int64, types.float64
+    ),
+    cache=True,
+    nogil=True,
+)
+def _refit(
+    points: FloatArray,
+    normal: FloatArray,
+    offset: float,
+    distance: float,
+    rounds: int,
+    settled: float,
+) -> tuple[FloatArray, float]:
+    """
+    Return the plane refitted on its inliers among `points`, round after round.
+
+    Each round fits :func:`_least_squares` to the points within `distance` of the plane before
+    it; at most `rounds` rounds, and none more once a refit turns the normal by less than the
+    angle whose cosine is `settled` (or fewer than 3 points are near).
+    """
+    near = np.empty(points.shape[0], dtype=np.int64)
+    normal = normal.copy()
+    for _ in range(rounds):
+        a, b, c = normal[0], normal[1], normal[2]
+        count = 0
+        for i in range(points.shape[0]):
+            if abs(a * points[i, 0] + b * points[i, 1] + c * points[i, 2] + offset) <= distance:
+                near[count] = i
+                count += 1
+        if count < 3:
             break
-        previous = normal
-        normal, offset = plane_through(points[near])
-        if abs(float(normal @ previous)) >= settled:
+        normal, offset = _least_squares(points, near, count)
+        if abs(normal[0] * a + normal[1] * b + normal[2] * c) >= settled:
             break
     return normal, offset
 

@@ -42,6 +42,80 @@ def test_property_best_plane_is_the_argmax_of_every_count(count, planes, share, 
     assert plane._best_plane(columns, normals, offsets, 0.02, block) == np.argmax(counts)
 
 
+def _numpy_plane(points):
+    """Return the least-squares plane as numpy computes it: centroid, scatter, ``eigh``."""
+    points = points[:: max(1, len(points) // plane.REFIT_POINTS)]
+    center = points.mean(axis=0)
+    centred = points - center
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    return vectors[:, 0], -float(vectors[:, 0] @ center)
+
+
+def _same_plane(first, second, tolerance):
+    """Tell whether two (normal, offset) are one plane (either orientation)."""
+    sign = 1.0 if float(first[0] @ second[0]) >= 0.0 else -1.0
+    return (
+        np.allclose(first[0], sign * second[0], atol=tolerance)
+        and abs(first[1] - sign * second[1]) <= tolerance
+    )
+
+
+@hypothesis_settings(max_examples=100, deadline=None)
+@given(
+    count=st.integers(3, 40_000),
+    tilt=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(0.1, 1.0)),
+    noise=st.sampled_from([0.0, 1e-4, 3e-3]),
+    spread=st.floats(0.01, 10.0),
+    seed=st.integers(0, 10_000),
+)
+def test_property_least_squares_plane_is_numpys(count, tilt, noise, spread, seed):
+    """`plane_through` (the compiled centroid, scatter and eigh) is numpy's plane to rounding."""
+    rng = np.random.default_rng(seed)
+    normal = np.asarray(tilt) / np.linalg.norm(tilt)
+    flat = rng.uniform(-spread, spread, (count, 2))
+    first = cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    first /= np.linalg.norm(first)
+    second = cross(normal, first)
+    points = (
+        flat[:, :1] * first + flat[:, 1:] * second + rng.normal(0.0, noise, (count, 1)) * normal
+    )
+    points += rng.uniform(-3.0, 3.0, 3)
+    fitted = plane.plane_through(points)
+    assert abs(np.linalg.norm(fitted[0]) - 1.0) < 1e-12
+    assert _same_plane(fitted, _numpy_plane(points), 1e-9 * max(1.0, spread))
+    if noise == 0.0 and count >= 3 and np.linalg.matrix_rank(flat - flat.mean(0), 1e-9) == 2:
+        assert _same_plane(fitted, (normal, -float(normal @ points[0])), 1e-9 * spread)
+
+
+@hypothesis_settings(max_examples=60, deadline=None)
+@given(
+    count=st.integers(3, 5000),
+    share=st.floats(0.2, 1.0),
+    slant=st.floats(0.0, 0.3),
+    rounds=st.integers(1, 5),
+    seed=st.integers(0, 10_000),
+)
+def test_property_refit_is_the_rounds_of_numpy_fits(count, share, slant, rounds, seed):
+    """`_refit` takes the same rounds as numpy fits on each round's inliers, to rounding."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1.0, 1.0, (count, 3))
+    table = int(share * count)
+    points[:table, 2] = rng.normal(0.0, 0.003, table)  # a table, and clutter above and below it
+    start = np.array([slant, 0.0, 1.0]) / np.linalg.norm([slant, 0.0, 1.0])
+    settled = np.cos(np.radians(plane.REFIT_TURN_DEG))
+    normal, offset = start, 0.0
+    for _ in range(rounds):  # the reference: the loop the kernel replaces
+        near = np.abs(points @ normal + offset) <= 0.01
+        if np.count_nonzero(near) < 3:
+            break
+        previous = normal
+        normal, offset = _numpy_plane(points[near])
+        if abs(float(normal @ previous)) >= settled:
+            break
+    fitted = plane._refit(points, start.copy(), 0.0, 0.01, rounds, settled)
+    assert _same_plane(fitted, (normal, offset), 1e-9)
+
+
 @hypothesis_settings(max_examples=150, deadline=None)
 @given(
     count=st.integers(3, 3000),
