@@ -23,7 +23,7 @@ import tempfile
 
 import rclpy
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 
 #: The node that creates the participant before the module loads: hidden (a leading
@@ -131,8 +131,25 @@ def main(args: Sequence[str] | None = None) -> int:
         return 0
 
 
+class _Executor(SingleThreadedExecutor):
+    """
+    rclpy's single-threaded executor, quiet when its construction fails.
+
+    Made after SIGINT's handler has shut rclpy down, rclpy's executor raises halfway through its
+    constructor, and its ``__del__`` then prints an AttributeError traceback on a clean stop.
+    """
+
+    def __del__(self) -> None:
+        if hasattr(self, '_sigint_gc'):
+            super().__del__()
+
+
 def _run(arguments: Sequence[str]) -> int:
     """Join the graph, load the node's module, and spin the node until it is stopped."""
+    # The executor before the node (whose constructor says "publishing on"): SIGINT's handler
+    # may shut rclpy down at any moment, and spin then stops, where an executor made after it
+    # would fail to be made.
+    executor = _Executor()
     startup = rclpy.create_node(
         STARTUP_NODE,
         use_global_arguments=False,
@@ -162,8 +179,10 @@ def _run(arguments: Sequence[str]) -> int:
         # What start-up loaded (numba, scipy, rclpy: some 140k objects) stays for good; frozen,
         # the garbage collector's full passes skip it instead of walking it during a cloud.
         gc.freeze()
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     finally:
+        executor.shutdown(timeout_sec=0.0)
         node.destroy_node()
     return 0
 

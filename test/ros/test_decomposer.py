@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 from pathlib import Path
 import signal
@@ -11,6 +12,7 @@ import time
 
 from mvbb_ros.pipeline.settings import defaults
 from mvbb_ros.pipeline.specs import SPECS
+from mvbb_ros.ros import decomposer
 from mvbb_ros.ros.decomposer import main, ros_log_fallback, wants_help
 import pytest
 import rclpy
@@ -88,15 +90,42 @@ def test_the_node_starts_with_a_home_it_cannot_write(tmp_path):
     assert output.count('cannot write ROS log files in') == 1 and 'Traceback' not in output
 
 
-def test_a_sigint_before_the_node_spins_is_a_clean_exit(monkeypatch):
-    # SIGINT's handler shuts rclpy down; landing after the constructor but before the executor
-    # exists, it made the executor's creation fail and the node exit 2 ("cannot start").
-    real_spin = rclpy.spin
+@pytest.fixture()
+def unraisable(monkeypatch):
+    """Collect what Python reports as raised and ignored (an exception in ``__del__``)."""
+    caught = []
+    monkeypatch.setattr(sys, 'unraisablehook', caught.append)
+    yield caught
+    gc.collect()
 
-    def shut_down_then_spin(node, *args, **kwargs):
+
+def test_a_sigint_before_the_node_spins_is_a_clean_exit(monkeypatch, unraisable):
+    # SIGINT's handler shuts rclpy down; landing after the node's constructor (which says
+    # "publishing on") but before the executor existed, it made the executor's creation fail:
+    # the node exited 2 ("cannot start"), then printed a traceback from the executor's __del__.
+    real_add_node = decomposer._Executor.add_node
+
+    def shut_down_then_add(executor, node):
         rclpy.shutdown()  # what SIGINT's handler does, on its own thread
-        real_spin(node, *args, **kwargs)
+        return real_add_node(executor, node)
 
-    monkeypatch.setattr(rclpy, 'spin', shut_down_then_spin)
+    monkeypatch.setattr(decomposer._Executor, 'add_node', shut_down_then_add)
     assert main(['decomposer']) == 0
     assert not rclpy.ok()
+    gc.collect()
+    assert not unraisable
+
+
+def test_a_sigint_before_the_executor_is_made_is_a_clean_exit(monkeypatch, unraisable):
+    # Earlier still, the executor's own construction fails halfway: a stop, and nothing printed.
+    real_init = decomposer._Executor.__init__
+
+    def shut_down_then_init(executor, *args, **kwargs):
+        rclpy.shutdown()
+        real_init(executor, *args, **kwargs)
+
+    monkeypatch.setattr(decomposer._Executor, '__init__', shut_down_then_init)
+    assert main(['decomposer']) == 0
+    assert not rclpy.ok()
+    gc.collect()
+    assert not unraisable
