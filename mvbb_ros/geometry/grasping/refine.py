@@ -163,9 +163,11 @@ def _holding_boxes(
     A grasp's line comes from one box but slides along its approach to the first contact, which
     may lie on another box of the object: the grasp belongs to the box its closing point is in
     (the one it is deepest in where leaves overlap), else to the nearest (distance to the box).
-    Ties go to the lower box index.
+    Ties go to the lower box index. The best box so far is kept per point, not a (G, boxes)
+    table: a frame of hundreds of objects has hundreds of thousands of grasps and boxes.
     """
-    fit = np.full((len(points), len(boxes)), -np.inf)
+    best = np.full(len(points), -np.inf)
+    holding = np.zeros(len(points), dtype=np.intp)
     for index, box in enumerate(boxes):
         mine = np.flatnonzero(objects == box_objects[index])
         if not len(mine):
@@ -173,8 +175,11 @@ def _holding_boxes(
         local = np.abs(box.to_local(points[mine]))
         outside = np.linalg.norm(np.maximum(local - box.half_extents, 0.0), axis=1)
         inside = np.min(box.half_extents - local, axis=1)
-        fit[mine, index] = np.where(outside > 0.0, -outside, inside)
-    return np.argmax(fit, axis=1)
+        fit = np.where(outside > 0.0, -outside, inside)
+        better = fit > best[mine]  # strictly: an equal fit keeps the lower index
+        best[mine[better]] = fit[better]
+        holding[mine[better]] = index
+    return holding
 
 
 #: The previous grasp is re-scored at these slides across the pads (fractions of the pad size)

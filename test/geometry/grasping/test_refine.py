@@ -396,3 +396,37 @@ def test_lines_started_on_the_helpers_give_the_rows_of_the_lines_checked_at_once
     for pool in (None, workers(2), workers(3)):
         finish = start_lines(model, *lines, ON, view, pool=pool)
         assert np.array_equal(finish(), at_once)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    boxes=st.integers(1, 12),
+    objects=st.integers(1, 5),
+    count=st.integers(0, 400),
+    seed=st.integers(0, 10_000),
+)
+def test_property_holding_boxes_is_the_argmax_of_every_boxs_fit(boxes, objects, count, seed):
+    """The holding box, kept as the best so far per grasp, is the table's argmax (ties: lower)."""
+    from mvbb_ros.geometry.grasping.refine import _holding_boxes
+
+    rng = np.random.default_rng(seed)
+    made = []
+    for _ in range(boxes):
+        rotation = Rotation.random(random_state=int(rng.integers(1 << 31))).as_matrix()
+        if rng.random() < 0.3:
+            rotation = np.eye(3)  # axis-aligned boxes on a grid of points: equal fits, ties
+        made.append(Box(np.round(rng.uniform(-1, 1, 3), 1), rotation, rng.choice([0.4, 1.0], 3)))
+    box_objects = rng.integers(0, objects, boxes)
+    points = np.round(rng.uniform(-1.5, 1.5, (count, 3)), 1)
+    owners = rng.integers(0, objects + 1, count)  # the last object has no box
+    # The reference: every box's fit in one (grasps, boxes) table, -inf for other objects' boxes.
+    table = np.full((count, boxes), -np.inf)
+    for index, box in enumerate(made):
+        mine = np.flatnonzero(owners == box_objects[index])
+        local = np.abs(box.to_local(points[mine]))
+        outside = np.linalg.norm(np.maximum(local - box.half_extents, 0.0), axis=1)
+        inside = np.min(box.half_extents - local, axis=1)
+        table[mine, index] = np.where(outside > 0.0, -outside, inside)
+    expected = np.argmax(table, axis=1) if boxes else np.zeros(count, dtype=np.intp)
+    found = _holding_boxes(points, owners, made, box_objects)
+    np.testing.assert_array_equal(found, expected)
