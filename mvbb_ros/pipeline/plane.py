@@ -44,7 +44,7 @@ MAX_TILT_DEG = 15.0
 def plane_through(points: FloatArray) -> tuple[FloatArray, float]:
     """Return the least-squares plane (unit normal, offset) of `points` (N >= 3)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    normal, offset = _least_squares(pts, np.arange(len(pts)), len(pts))
+    normal, offset = _least_squares(pts, np.arange(len(pts), dtype=np.int64), len(pts))
     return normal, offset
 
 
