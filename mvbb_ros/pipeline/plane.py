@@ -44,8 +44,7 @@ MAX_TILT_DEG = 15.0
 def plane_through(points: FloatArray) -> tuple[FloatArray, float]:
     """Return the least-squares plane (unit normal, offset) of `points` (N >= 3)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    normal, offset = _least_squares(pts, np.arange(len(pts), dtype=np.int64), len(pts))
-    return normal, offset
+    return _least_squares(pts, np.arange(len(pts), dtype=np.int64), len(pts))
 
 
 def fit_plane(
@@ -149,7 +148,6 @@ def _refit(
     angle whose cosine is `settled` (or fewer than 3 points are near).
     """
     near = np.empty(points.shape[0], dtype=np.int64)
-    normal = normal.copy()
     for _ in range(rounds):
         a, b, c = normal[0], normal[1], normal[2]
         count = 0
