@@ -60,6 +60,8 @@ import time
 
 from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the peer chain (peers.py)
+
 SHARED_DATA = shared_data_folder()
 THREAD_VARIABLES = (
     'OMP_NUM_THREADS',
@@ -237,17 +239,9 @@ class Bench:
 
     def open3d_chain(self, points) -> float:
         """Time the hand-written Open3D chain on decoded float64 points (ms)."""
-        import open3d as o3d
+        from peers import open3d_filter_chain_ms
 
-        start = time.perf_counter()
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-        filtering = self.settings.filtering
-        cloud = cloud.voxel_down_sample(filtering.voxel_size)
-        cloud.remove_statistical_outlier(
-            nb_neighbors=filtering.outlier_neighbors,
-            std_ratio=filtering.outlier_std_ratio,
-        )
-        return (time.perf_counter() - start) * 1e3
+        return open3d_filter_chain_ms(points, self.settings.filtering)
 
 
 def measure(bench: Bench, clouds: list, repeats: int) -> dict:

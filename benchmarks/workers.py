@@ -20,6 +20,13 @@ decomposition (box centre, rotation, extents, point indices, cut, gain) and ever
 (pose, width, score, box and object). The last lines give, per worker count, the median and the
 worst of the per-scan medians, and the load average before and after.
 
+The peer: in every round, after the worker counts, Open3D's filter chain as a user writes it
+by hand with the node's filter settings (:mod:`peers`: voxel grid, statistical outlier removal;
+the float64 copy of the cloud is not timed; Open3D's own OpenMP threads, one per CPU the process
+may use), on the same cloud in the same process. ``open3d``
+is its median per scan, and the last lines give each count's median over the scans of its
+time over the chain's: a ratio that moves much less from machine to machine than a time.
+
 ``caller CPU`` is the CPU time of the thread that called ``process_points``, ``CPU`` that of
 the whole process (every thread), medians in ms. On a machine shared with other work the wall
 clock of more workers says little (the helpers wait for a core); the calling thread's CPU time
@@ -44,6 +51,8 @@ import sys
 import time
 
 from mvbb_ros.evaluation.shared_data import missing, shared_data_folder
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the peer chain (peers.py)
 
 SHARED_DATA = shared_data_folder()
 #: The stage columns, in pipeline order (keys of ``PipelineResult.timings_ms``).
@@ -103,6 +112,7 @@ def main() -> int:
     from mvbb_ros.pipeline.process import process_points
     from mvbb_ros.pipeline.settings import PipelineSettings
     import numpy as np
+    from peers import open3d_filter_chain_ms
 
     commit = subprocess.run(
         ['git', 'log', '-1', '--format=%h %s'],
@@ -133,16 +143,18 @@ def main() -> int:
     header = ['scan', 'kept', 'boxes', 'grasps']
     for count in counts:
         header += [f'w{count} ms', f'w{count} caller CPU', f'w{count} CPU']
-    header.append('same')
+    header += ['open3d', 'same']
     print('\n## Per scan: medians in ms (wall clock, CPU of the calling thread, of the process)\n')
     print('| ' + ' | '.join(header) + ' |')
     print('|' + '---|' * len(header))
     totals: dict[int, list[float]] = {count: [] for count in counts}
     cpu: dict[int, list[float]] = {count: [] for count in counts}
     stage_rows: dict[int, list[list[float]]] = {count: [] for count in counts}
+    chains: list[float] = []
     all_same = True
     for path in scans:
         cloud = resampled(path)
+        peer_points = np.ascontiguousarray(cloud, dtype=np.float64)
         prints = set()
         times: dict[int, list[float]] = {count: [] for count in counts}
         caller: dict[int, list[float]] = {count: [] for count in counts}
@@ -153,6 +165,8 @@ def main() -> int:
         for count in counts:
             result = process_points(cloud, settings[count])
             prints.add(fingerprint(result))
+        open3d_filter_chain_ms(peer_points, base.filtering)
+        chain: list[float] = []
         for _ in range(args.runs):
             for count in counts:
                 start = time.perf_counter()
@@ -164,6 +178,8 @@ def main() -> int:
                 for stage in STAGES:
                     stages[count][stage].append(result.timings_ms.get(stage, 0.0))
                 prints.add(fingerprint(result))
+            chain.append(open3d_filter_chain_ms(peer_points, base.filtering))
+        chains.append(float(np.median(chain)))
         same = len(prints) == 1
         all_same &= same
         cells = [
@@ -182,7 +198,7 @@ def main() -> int:
                 f'{np.median(used[count]):.1f}',
             ]
             stage_rows[count].append([float(np.median(stages[count][stage])) for stage in STAGES])
-        cells.append('yes' if same else '**NO**')
+        cells += [f'{chains[-1]:.1f}', 'yes' if same else '**NO**']
         print('| ' + ' | '.join(cells) + ' |', flush=True)
     print("\n## Stages (`timings_ms`): median over the scans of each scan's median, ms\n")
     print('| workers | ' + ' | '.join(STAGES) + ' | wall clock |')
@@ -199,6 +215,13 @@ def main() -> int:
             f'workers {count}: median {np.median(values):.1f} ms, worst {values[worst]:.1f} ms '
             f"({scans[worst].stem}) over {len(values)} scans; the calling thread's CPU time: "
             f'median {np.median(cpu[count]):.1f} ms, worst {np.max(cpu[count]):.1f} ms'
+        )
+    chain_ms = np.asarray(chains)
+    print(f"Open3D's filter chain: median {np.median(chain_ms):.1f} ms over the scans")
+    for count in counts:
+        print(
+            f"workers {count} / Open3D's chain: median ratio "
+            f'{np.median(np.asarray(totals[count]) / chain_ms):.2f}'
         )
     if len(counts) > 1:
         first = np.asarray(totals[counts[0]])

@@ -61,3 +61,6 @@ def test_one_short_run_compares_the_counts_and_finds_them_identical():
     assert '| mosd_learn33_obj4 |' in completed.stdout
     assert 'identical outputs for every worker count: yes' in completed.stdout
     assert 'workers 2 / workers 1: median ratio' in completed.stdout
+    ratios = [line for line in completed.stdout.splitlines() if "/ Open3D's chain" in line]
+    assert len(ratios) == 2, 'one ratio to the peer chain per worker count'
+    assert all(float(line.rsplit(' ', 1)[1]) > 0.0 for line in ratios)
