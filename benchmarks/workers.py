@@ -20,12 +20,15 @@ decomposition (box centre, rotation, extents, point indices, cut, gain) and ever
 (pose, width, score, box and object). The last lines give, per worker count, the median and the
 worst of the per-scan medians, and the load average before and after.
 
-The peer: in every round, after the worker counts, Open3D's filter chain as a user writes it
-by hand with the node's filter settings (:mod:`peers`: voxel grid, statistical outlier removal;
-the float64 copy of the cloud is not timed; Open3D's own OpenMP threads, one per CPU the process
-may use), on the same cloud in the same process. ``open3d``
-is its median per scan, and the last lines give each count's median over the scans of its
-time over the chain's: a ratio that moves much less from machine to machine than a time.
+The peer: after a scan's rounds, Open3D's filter chain as a user writes it by hand with the
+node's filter settings (:mod:`peers`: voxel grid, statistical outlier removal; the float64 copy
+of the cloud is not timed; Open3D's own OpenMP threads, one per CPU the process may use), on the
+same cloud in the same process, one warm-up run and ``--runs`` timed. ``open3d`` is its median
+per scan, and the last lines give each count's median over the scans of its time over the
+chain's: a ratio that moves much less from machine to machine than a time. The chain runs
+apart from the rounds because OpenMP's threads keep spinning for a while after it: they would
+take a core from the helpers of the run that follows (the next scan starts with untimed
+warm-up runs).
 
 ``caller CPU`` is the CPU time of the thread that called ``process_points``, ``CPU`` that of
 the whole process (every thread), medians in ms. On a machine shared with other work the wall
@@ -165,8 +168,6 @@ def main() -> int:
         for count in counts:
             result = process_points(cloud, settings[count])
             prints.add(fingerprint(result))
-        open3d_filter_chain_ms(peer_points, base.filtering)
-        chain: list[float] = []
         for _ in range(args.runs):
             for count in counts:
                 start = time.perf_counter()
@@ -178,7 +179,8 @@ def main() -> int:
                 for stage in STAGES:
                     stages[count][stage].append(result.timings_ms.get(stage, 0.0))
                 prints.add(fingerprint(result))
-            chain.append(open3d_filter_chain_ms(peer_points, base.filtering))
+        open3d_filter_chain_ms(peer_points, base.filtering)
+        chain = [open3d_filter_chain_ms(peer_points, base.filtering) for _ in range(args.runs)]
         chains.append(float(np.median(chain)))
         same = len(prints) == 1
         all_same &= same
