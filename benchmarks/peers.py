@@ -5,7 +5,7 @@ A user of Open3D who filters a cloud as the node does writes ``PointCloud(Vector
 points))``, ``voxel_down_sample(voxel_size)`` and ``remove_statistical_outlier(
 outlier_neighbors, outlier_std_ratio)``. ``benchmarks/pipeline.py`` and
 ``benchmarks/workers.py`` time it on the same clouds, in the same process, taking turns with the
-pipeline: a ratio against it moves much less between machines and days than a time does.
+pipeline: a machine's speed moves a ratio against it less than it moves a time.
 """
 
 from __future__ import annotations

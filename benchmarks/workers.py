@@ -25,10 +25,10 @@ node's filter settings (:mod:`peers`: voxel grid, statistical outlier removal; t
 of the cloud is not timed; Open3D's own OpenMP threads, one per CPU the process may use), on the
 same cloud in the same process, one warm-up run and ``--runs`` timed. ``open3d`` is its median
 per scan, and the last lines give each count's median over the scans of its time over the
-chain's: a ratio that moves much less from machine to machine than a time. The chain runs
-apart from the rounds because OpenMP's threads keep spinning for a while after it: they would
-take a core from the helpers of the run that follows (the next scan starts with untimed
-warm-up runs).
+chain's: a machine's speed moves such a ratio less than a time. The chain runs apart from the
+rounds because OpenMP's threads keep running for a while after it (timed inside the rounds, a
+one-worker run that followed used about 9 ms more CPU than its calling thread, on the core a
+helper needs); the next scan starts with untimed warm-up runs.
 
 ``caller CPU`` is the CPU time of the thread that called ``process_points``, ``CPU`` that of
 the whole process (every thread), medians in ms. On a machine shared with other work the wall
