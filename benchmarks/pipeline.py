@@ -354,7 +354,10 @@ def main() -> int:
         cwd=Path(__file__).resolve().parent,
         check=False,
     ).stdout.strip()
+    from peers import machine
+
     print(f'commit: {commit}')
+    print(f'machine: {machine()}')
     print(
         f'one core: CPU {sorted(os.sched_getaffinity(0))}, '
         + ', '.join(f'{name}={os.environ[name]}' for name in THREAD_VARIABLES)

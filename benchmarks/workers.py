@@ -115,7 +115,7 @@ def main() -> int:
     from mvbb_ros.pipeline.process import process_points
     from mvbb_ros.pipeline.settings import PipelineSettings
     import numpy as np
-    from peers import open3d_filter_chain_ms
+    from peers import machine, open3d_filter_chain_ms
 
     commit = subprocess.run(
         ['git', 'log', '-1', '--format=%h %s'],
@@ -126,6 +126,7 @@ def main() -> int:
     ).stdout.strip()
     load_before = os.getloadavg()
     print(f'commit: {commit}')
+    print(f'machine: {machine()}')
     print(
         f'CPUs {sorted(os.sched_getaffinity(0))}; numpy {np.__version__}; load average '
         + ' '.join(f'{value:.2f}' for value in load_before)
